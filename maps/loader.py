@@ -1,0 +1,234 @@
+"""Load, validate and write sign maps (schema in ``maps/SCHEMA.md``).
+
+World frame: the map's ``frame``, z up, metres.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from frontend.sign import ALL_CODES, sign_keypoints
+from signpose.errors import InputError
+from signpose.fileio import atomic_write
+
+ORTHOGONALITY_TOL_DEG = 1.0
+
+
+@dataclass(frozen=True)
+class MapSign:
+    """One surveyed sign.
+
+    Attributes:
+        code: "0000".."1111".
+        center_m: (3,) disc centre in the world frame [m].
+        normal: (3,) unit normal out of the face, world frame, or None.
+        up: (3,) unit vector from the centre toward the directional rectangle,
+            world frame, or None.
+        diameter_m: disc diameter [m].
+        sigma_m: survey standard deviation of each coordinate [m].
+    """
+
+    code: str
+    center_m: np.ndarray
+    normal: np.ndarray | None
+    up: np.ndarray | None
+    diameter_m: float
+    sigma_m: float
+
+    @property
+    def oriented(self) -> bool:
+        return self.normal is not None
+
+    def world_R_sign(self) -> np.ndarray:
+        """(3, 3) rotation whose columns are the sign's x (right), y (up), z (normal)."""
+        if self.normal is None or self.up is None:
+            raise ValueError(f"sign {self.code} has no orientation")
+        right = np.cross(self.up, self.normal)
+        return np.stack([right, self.up, self.normal], axis=1)
+
+    def world_T_sign(self) -> np.ndarray:
+        """(4, 4) pose of the sign frame in the world frame."""
+        T = np.eye(4)
+        T[:3, :3] = self.world_R_sign()
+        T[:3, 3] = self.center_m
+        return T
+
+    def keypoints_world(self) -> dict[str, np.ndarray]:
+        """Named keypoints (3,) in the world frame [m].
+
+        A centre-only sign gives only ``center``; an oriented sign gives every
+        keypoint that ``frontend.sign.sign_keypoints`` defines for its code.
+        """
+        if not self.oriented:
+            return {"center": self.center_m.copy()}
+        R = self.world_R_sign()
+        return {
+            name: self.center_m + R @ p
+            for name, p in sign_keypoints(self.code, self.diameter_m).items()
+        }
+
+
+@dataclass(frozen=True)
+class SignMap:
+    """A site's surveyed signs.
+
+    Attributes:
+        frame: name of the world frame (z up).
+        signs: the signs, in file order, codes unique.
+        source: the file it was read from ("" when built in code).
+    """
+
+    frame: str
+    signs: tuple[MapSign, ...]
+    source: str = ""
+
+    @property
+    def codes(self) -> tuple[str, ...]:
+        return tuple(s.code for s in self.signs)
+
+    def sign(self, code: str) -> MapSign | None:
+        for s in self.signs:
+            if s.code == code:
+                return s
+        return None
+
+    def centers_m(self) -> np.ndarray:
+        """(N, 3) sign centres [m], world frame, in ``signs`` order."""
+        return np.array([s.center_m for s in self.signs]).reshape(-1, 3)
+
+
+def bundled_map_path(name: str = "demo_pylon") -> Path:
+    """Path of a map shipped with the package (``maps/<name>.yaml``)."""
+    return Path(str(resources.files("maps").joinpath(f"{name}.yaml")))
+
+
+def _vector(path: str, where: str, field: str, value, *, nonzero: bool) -> np.ndarray:
+    if not isinstance(value, list | tuple) or len(value) != 3:
+        raise InputError(f"{path}: {where}: field '{field}' must be a list of 3 numbers")
+    try:
+        v = np.array([float(x) for x in value])
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: {where}: field '{field}' must hold numbers") from None
+    if not np.all(np.isfinite(v)):
+        raise InputError(f"{path}: {where}: field '{field}' has a non-finite number")
+    if nonzero:
+        n = float(np.linalg.norm(v))
+        if n < 1e-9:
+            raise InputError(f"{path}: {where}: field '{field}' is a zero vector")
+        v = v / n
+    return v
+
+
+def _positive(path: str, where: str, field: str, value) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: {where}: field '{field}' must be a number") from None
+    if not math.isfinite(x) or x <= 0:
+        raise InputError(f"{path}: {where}: field '{field}' must be a finite number > 0")
+    return x
+
+
+def parse_map(data, source: str = "<map>") -> SignMap:
+    """Validate a map already parsed from YAML; raise InputError on any problem."""
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: not a sign map (expected keys 'frame' and 'signs')")
+    frame = data.get("frame")
+    if not isinstance(frame, str) or not frame:
+        raise InputError(f"{source}: missing field 'frame' (the world frame's name)")
+    raw_signs = data.get("signs")
+    if not isinstance(raw_signs, list) or not raw_signs:
+        raise InputError(f"{source}: field 'signs' must be a non-empty list")
+    signs: list[MapSign] = []
+    seen: set[str] = set()
+    for i, raw in enumerate(raw_signs):
+        where = f"sign #{i + 1}"
+        if not isinstance(raw, dict):
+            raise InputError(f"{source}: {where}: must be a mapping of fields")
+        code = raw.get("code")
+        if code is None:
+            raise InputError(f"{source}: {where}: missing field 'code'")
+        if isinstance(code, int) and not isinstance(code, bool):
+            raise InputError(
+                f"{source}: {where}: field 'code' must be a quoted string such as \"0101\""
+            )
+        if code not in ALL_CODES:
+            raise InputError(f"{source}: {where}: unknown code {code!r} (use '0000' to '1111')")
+        where = f"sign {code}"
+        if code in seen:
+            raise InputError(f"{source}: {where}: duplicate code")
+        seen.add(code)
+        unknown = set(raw) - {"code", "center_m", "normal", "up", "diameter_m", "sigma_m"}
+        if unknown:
+            raise InputError(f"{source}: {where}: unknown field '{sorted(unknown)[0]}'")
+        for field in ("center_m", "diameter_m", "sigma_m"):
+            if field not in raw:
+                raise InputError(f"{source}: {where}: missing field '{field}'")
+        center = _vector(source, where, "center_m", raw["center_m"], nonzero=False)
+        has_n, has_u = "normal" in raw, "up" in raw
+        if has_n != has_u:
+            missing = "up" if has_n else "normal"
+            raise InputError(
+                f"{source}: {where}: missing field '{missing}' ('normal' and 'up' go together)"
+            )
+        normal = up = None
+        if has_n:
+            normal = _vector(source, where, "normal", raw["normal"], nonzero=True)
+            up = _vector(source, where, "up", raw["up"], nonzero=True)
+            angle = math.degrees(math.acos(min(1.0, abs(float(normal @ up)))))
+            if abs(90.0 - angle) > ORTHOGONALITY_TOL_DEG:
+                raise InputError(
+                    f"{source}: {where}: field 'up' is not orthogonal to 'normal' "
+                    f"({angle:.1f} degrees apart)"
+                )
+            # Remove the small allowed non-orthogonality so world_R_sign is a rotation.
+            up = up - (up @ normal) * normal
+            up = up / np.linalg.norm(up)
+        diameter = _positive(source, where, "diameter_m", raw["diameter_m"])
+        sigma = _positive(source, where, "sigma_m", raw["sigma_m"])
+        signs.append(MapSign(code, center, normal, up, diameter, sigma))
+    return SignMap(frame=frame, signs=tuple(signs), source=source)
+
+
+def load_map(path: str | Path) -> SignMap:
+    """Read and validate a map file; raise InputError naming the file on any problem."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{p}: map file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{p}: cannot read map file ({exc})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        line = getattr(getattr(exc, "problem_mark", None), "line", None)
+        at = f" at line {line + 1}" if line is not None else ""
+        raise InputError(f"{p}: not valid YAML{at}; fix the map syntax") from None
+    return parse_map(data, str(p))
+
+
+def map_to_dict(sign_map: SignMap) -> dict:
+    """Plain-data form of a map, as written to YAML."""
+    out = []
+    for s in sign_map.signs:
+        d = {"code": s.code, "center_m": [round(float(x), 6) for x in s.center_m]}
+        if s.oriented:
+            d["normal"] = [round(float(x), 9) for x in s.normal]
+            d["up"] = [round(float(x), 9) for x in s.up]
+        d["diameter_m"] = s.diameter_m
+        d["sigma_m"] = s.sigma_m
+        out.append(d)
+    return {"frame": sign_map.frame, "signs": out}
+
+
+def write_map(path: str | Path, sign_map: SignMap) -> None:
+    """Write ``sign_map`` as YAML (atomically)."""
+    with atomic_write(path) as f:
+        yaml.safe_dump(map_to_dict(sign_map), f, sort_keys=False, default_flow_style=None)

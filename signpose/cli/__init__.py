@@ -1,0 +1,99 @@
+"""The ``signpose`` command: argument parsing only; the work is in library functions.
+
+Each subcommand lives in its own module here with ``register(subparsers)``,
+which adds its parser and sets ``func`` to a function taking the parsed
+namespace and returning an exit code. Namespaces never leave this package.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from signpose import __version__
+from signpose.errors import SignposeError
+
+# Subcommand modules, in the order `signpose --help` lists them.
+COMMANDS = (
+    "sign",
+    "simulate",
+    "decode",
+    "detect",
+    "train_detector",
+    "observe",
+    "estimate",
+    "compare",
+    "run",
+    "batch",
+    "demo",
+)
+
+EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="signpose",
+        description="UAV trajectories from coded signs on power pylons.",
+    )
+    parser.add_argument("--version", action="version", version=f"signpose {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log diagnostics")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"signpose.cli.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"signpose.cli.{name}":
+                continue  # command not built yet
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        code = args.func(args)
+    except SignposeError as exc:
+        print(f"signpose {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print(f"signpose {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # noqa: BLE001 - the CLI's last line of defence
+        if args.debug:
+            raise
+        print(
+            f"signpose {args.command}: internal error: {type(exc).__name__}: {exc} "
+            "(rerun with --debug for the traceback)",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
+    return EXIT_OK if code is None else int(code)
+
+
+def add_quiet(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+
+def codes_arg(text: str) -> tuple[str, ...]:
+    """argparse type for ``--codes 0001,0010``."""
+    from frontend.sign import ALL_CODES
+
+    codes = tuple(c.strip() for c in text.split(",") if c.strip())
+    bad = [c for c in codes if c not in ALL_CODES]
+    if bad or not codes:
+        raise argparse.ArgumentTypeError(f"unknown code {bad[0] if bad else text!r}")
+    return codes
+
+
+if __name__ == "__main__":
+    sys.exit(main())

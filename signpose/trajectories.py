@@ -1,0 +1,139 @@
+"""Simulated UAV flights in front of a sign map (ground truth for the simulator and evaluations).
+
+Every trajectory looks at the map's signs from the side their normals face,
+25 to 30 m away by default (the paper's simulated set), with the small yaw,
+pitch and roll wobble of a real multirotor. Poses are ``world_T_cam`` with
+the OpenCV camera axes (x right, y down, z forward).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from estimator.tum import Trajectory
+from maps.loader import SignMap
+
+TRAJECTORIES = ("climb-hover-depart", "orbit", "lawnmower")
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
+def _site_frame(sign_map: SignMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Centre of the signs, the mean facing direction, a horizontal 'right' and world up."""
+    centers = sign_map.centers_m()
+    center = centers.mean(axis=0)
+    normals = [s.normal for s in sign_map.signs if s.normal is not None]
+    if normals:
+        facing = np.mean(normals, axis=0)
+    else:
+        # Centre-only map: the direction of least spread of the centres.
+        _, _, vt = np.linalg.svd(centers - center)
+        facing = vt[-1]
+    facing[2] = 0.0
+    if np.linalg.norm(facing) < 1e-6:
+        facing = np.array([0.0, 1.0, 0.0])
+    facing /= np.linalg.norm(facing)
+    z_up = np.array([0.0, 0.0, 1.0])
+    right = np.cross(z_up, facing)  # horizontal, to the viewer's left-to-right... see below
+    right /= np.linalg.norm(right)
+    return center, facing, right, z_up
+
+
+def look_at(cam_pos: np.ndarray, target: np.ndarray, world_up: np.ndarray) -> np.ndarray:
+    """(3, 3) world_R_cam for a camera at ``cam_pos`` looking at ``target``, image up ~ world up."""
+    z = target - cam_pos
+    z = z / np.linalg.norm(z)
+    x = np.cross(z, world_up)
+    x = x / np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=1)
+
+
+def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+
+
+def make_trajectory(
+    name: str,
+    sign_map: SignMap,
+    n_frames: int = 210,
+    fps: float = 30.0,
+    distance_m: float = 27.0,
+    seed: int = 0,
+    wobble_deg: float = 1.5,
+) -> Trajectory:
+    """A simulated flight.
+
+    Args:
+        name: one of ``TRAJECTORIES``.
+        sign_map: the signs the flight looks at.
+        n_frames: number of poses.
+        fps: frame rate [Hz]; stamps are frame / fps [s].
+        distance_m: nominal distance from the signs [m].
+        seed: seeds the wobble phases.
+        wobble_deg: amplitude of the yaw/pitch/roll wobble [deg].
+
+    Returns:
+        The ground-truth trajectory (world_T_cam per frame).
+    """
+    if name not in TRAJECTORIES:
+        raise ValueError(f"unknown trajectory {name!r}; choose from {', '.join(TRAJECTORIES)}")
+    rng = np.random.default_rng(seed)
+    center, facing, right, up = _site_frame(sign_map)
+    span_z = float(np.ptp(sign_map.centers_m()[:, 2])) if len(sign_map.signs) > 1 else 4.0
+    s = np.linspace(0.0, 1.0, n_frames)
+    d = distance_m
+    if name == "climb-hover-depart":
+        # Paper Fig. 13: climb in front of the pylon, hover, back away while descending.
+        climb = _smoothstep(s / 0.4)
+        depart = _smoothstep((s - 0.6) / 0.4)
+        height = -0.45 * span_z + 0.55 * span_z * climb - 0.35 * span_z * depart
+        back = d - 1.5 + 1.5 * climb + 3.5 * depart
+        lateral = 1.0 - 1.0 * climb - 1.5 * depart
+        pos = center + np.outer(back, facing) + np.outer(lateral, right) + np.outer(height, up)
+        target = np.tile(center, (n_frames, 1))
+    elif name == "orbit":
+        angle = np.radians(35.0) * np.sin(2 * np.pi * s)
+        radius = d + 1.5 * np.sin(4 * np.pi * s)
+        height = 0.15 * span_z * np.sin(2 * np.pi * s + 0.7)
+        horiz = np.outer(np.cos(angle), facing) + np.outer(np.sin(angle), right)
+        pos = center + horiz * radius[:, None] + np.outer(height, up)
+        target = np.tile(center, (n_frames, 1))
+    else:  # lawnmower: horizontal passes at four heights, facing the pylon
+        rows = 4
+        row = np.minimum((s * rows).astype(int), rows - 1)
+        within = s * rows - row
+        sweep = np.where(row % 2 == 0, within, 1 - within)
+        lateral = -4.0 + 8.0 * _smoothstep(sweep)
+        height = (
+            -0.4 + 0.8 * (row + _smoothstep(np.clip((within - 0.85) / 0.15, 0, 1))) / rows
+        ) * span_z
+        pos = center + d * facing + np.outer(lateral, right) + np.outer(height, up)
+        target = center + np.outer(0.6 * lateral, right) + np.outer(0.6 * height, up)
+    # Multirotor wobble: a few incommensurate sinusoids per axis.
+    t = s * n_frames / fps
+    freqs = rng.uniform(0.2, 1.5, size=(3, 3))
+    phases = rng.uniform(0, 2 * np.pi, size=(3, 3))
+    amps = np.radians(wobble_deg) * np.array([1.0, 0.6, 0.4])
+    poses = np.tile(np.eye(4), (n_frames, 1, 1))
+    for i in range(n_frames):
+        R = look_at(pos[i], target[i], up)
+        ang = amps[:, None] * np.sin(2 * np.pi * freqs * t[i] + phases)
+        yaw, pitch, roll = ang.sum(axis=1) / 3.0 * np.array([1.0, 1.0, 1.0])
+        # Yaw about world up, pitch about the camera x axis, roll about the optical axis.
+        R = (
+            _rot(up, yaw)
+            @ R
+            @ _rot(np.array([1.0, 0, 0]), pitch)
+            @ _rot(np.array([0, 0, 1.0]), roll)
+        )
+        poses[i, :3, :3] = R
+        poses[i, :3, 3] = pos[i]
+    return Trajectory.from_matrices(np.arange(n_frames) / fps, poses)
