@@ -1,0 +1,410 @@
+"""Synthetic crops of one sign, for decoder evaluation and detector training.
+
+A crop shows one sign (``frontend.sign``) seen through a pinhole camera, on a
+procedural background, with the disturbances of the paper's Table 3 (motion
+blur, dirt, a power line across the sign, small size, oblique view, complex
+surroundings). Everything is drawn from the ``numpy.random.Generator`` passed
+in, so a crop is reproducible from its seed.
+
+Geometry. The sign frame is the one of ``frontend.sign`` (x right, y up,
+z out of the face). The camera (OpenCV axes: x right, y down, z forward)
+looks at the sign centre along its optical axis from a distance chosen so
+that the disc, seen face-on, is ``sign_px`` pixels across:
+
+    cam_R_sign = R(tilt axis, tilt) @ diag(1, -1, -1) @ Rz(rotation)
+    crop_H_sign = K @ [r1 r2 t],  t = (0, 0, focal_px * diameter / sign_px)
+
+``rotation_deg`` turns the face in its own plane, counter-clockwise as the
+viewer sees it; ``tilt_deg`` is the angle between the sign's normal and the
+line of sight, about an axis in the image plane at ``tilt_axis_deg`` from the
+image u axis (toward +v). The crop's principal point sits near the crop
+centre (a random sub-pixel offset, so keypoints do not always fall on pixel
+centres). Pixel centres are at integers (OpenCV convention).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from frontend.sign import fill_polygon_aa, sign_keypoints, sign_shape, validate_code
+
+BACKGROUNDS: tuple[str, ...] = ("plain", "sky", "lattice", "lines", "ground", "clutter")
+
+# Gray levels of the printed face before exposure (contrast/brightness).
+BLACK_LEVEL = 28.0
+WHITE_LEVEL = 232.0
+DEFAULT_FOCAL_PX = 800.0
+
+
+@dataclass(frozen=True)
+class SynthCrop:
+    """One rendered crop and its ground truth.
+
+    Attributes:
+        image: (H, W) uint8 gray crop.
+        code: the sign's code, "0000".."1111".
+        keypoints_px: keypoint name -> (u, v) true projection in crop pixels of
+            each keypoint ``frontend.sign.sign_keypoints`` defines for this
+            code (``center``, ``direction``, white ``slotK``).
+        ellipse: the disc's exact image ((cx, cy), (major, minor), angle_deg):
+            centre [px], full axis lengths [px], angle of the major axis from
+            the u axis toward +v [deg] (cv2.RotatedRect convention).
+        diameter_px: the disc diameter seen face-on at the sign's depth [px].
+        crop_H_sign: (3, 3) homography from sign-plane metres (x, y, 1) to crop
+            pixels (u, v, 1); the sign's diameter is ``diameter_m``.
+        diameter_m: disc diameter used for the geometry [m].
+        conditions: the rendering parameters (for tables and debugging).
+    """
+
+    image: np.ndarray
+    code: str
+    keypoints_px: dict[str, tuple[float, float]]
+    ellipse: tuple[tuple[float, float], tuple[float, float], float]
+    diameter_px: float
+    crop_H_sign: np.ndarray
+    diameter_m: float = 1.0
+    conditions: dict = field(default_factory=dict)
+
+
+def _rodrigues(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    r, _ = cv2.Rodrigues(np.asarray(axis, float).reshape(3, 1) * angle_rad)
+    return r
+
+
+def crop_homography(
+    sign_px: float,
+    rotation_deg: float,
+    tilt_deg: float,
+    tilt_axis_deg: float,
+    principal_px: tuple[float, float],
+    focal_px: float = DEFAULT_FOCAL_PX,
+    diameter_m: float = 1.0,
+) -> np.ndarray:
+    """(3, 3) homography from sign-plane metres to crop pixels (see module doc)."""
+    rot = math.radians(rotation_deg)
+    c, s = math.cos(rot), math.sin(rot)
+    rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    phi = math.radians(tilt_axis_deg)
+    r_tilt = _rodrigues(np.array([math.cos(phi), math.sin(phi), 0.0]), math.radians(tilt_deg))
+    cam_R_sign = r_tilt @ np.diag([1.0, -1.0, -1.0]) @ rz
+    cam_t_sign = np.array([0.0, 0.0, focal_px * diameter_m / sign_px])
+    k = np.array(
+        [[focal_px, 0.0, principal_px[0]], [0.0, focal_px, principal_px[1]], [0.0, 0.0, 1.0]]
+    )
+    h = k @ np.column_stack([cam_R_sign[:, 0], cam_R_sign[:, 1], cam_t_sign])
+    return h / h[2, 2]
+
+
+def apply_homography(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Map (N, 2) points through the (3, 3) homography ``h``; returns (N, 2)."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    p = xy @ h[:, :2].T + h[:, 2]
+    return p[:, :2] / p[:, 2:3]
+
+
+def ellipse_from_conic(c: np.ndarray) -> tuple[tuple[float, float], tuple[float, float], float]:
+    """Centre, full axes and angle of the ellipse x^T c x = 0 (c: (3, 3) symmetric)."""
+    a = c[:2, :2]
+    b = c[:2, 2]
+    centre = -np.linalg.solve(a, b)
+    k = centre @ a @ centre + 2 * b @ centre + c[2, 2]
+    w, v = np.linalg.eigh(a / -k)
+    # Semi-axes: 1/sqrt(eigenvalue); the smallest eigenvalue is the major axis.
+    major_dir = v[:, 0]
+    axes = (2.0 / math.sqrt(w[0]), 2.0 / math.sqrt(w[1]))
+    angle = math.degrees(math.atan2(major_dir[1], major_dir[0])) % 180.0
+    return (float(centre[0]), float(centre[1])), (float(axes[0]), float(axes[1])), angle
+
+
+def disc_ellipse(
+    crop_H_sign: np.ndarray, diameter_m: float
+) -> tuple[tuple[float, float], tuple[float, float], float]:
+    """Exact image of the disc rim under ``crop_H_sign`` (an ellipse)."""
+    r = diameter_m / 2.0
+    circle = np.diag([1.0, 1.0, -r * r])
+    hinv = np.linalg.inv(crop_H_sign)
+    return ellipse_from_conic(hinv.T @ circle @ hinv)
+
+
+# ---------------------------------------------------------------------------
+# Backgrounds
+
+
+def _smooth_noise(rng: np.random.Generator, h: int, w: int, cells: int) -> np.ndarray:
+    """Zero-mean, unit-ish smooth noise of (h, w), ``cells`` features across."""
+    gh, gw = max(2, cells * h // max(h, w) + 2), max(2, cells * w // max(h, w) + 2)
+    grid = rng.standard_normal((gh, gw)).astype(np.float32)
+    return cv2.resize(grid, (w, h), interpolation=cv2.INTER_CUBIC).astype(np.float64)
+
+
+def _gradient(rng: np.random.Generator, h: int, w: int, lo: float, hi: float) -> np.ndarray:
+    a = rng.uniform(0, 2 * math.pi)
+    yy, xx = np.mgrid[0:h, 0:w]
+    t = (math.cos(a) * xx + math.sin(a) * yy) / max(h, w)
+    t = t - t.min()
+    t = t / max(t.max(), 1e-9)
+    return lo + (hi - lo) * t
+
+
+def _bar(image: np.ndarray, p0, p1, width: float, value: float) -> None:
+    """Draw a straight bar of ``width`` px from p0 to p1 (anti-aliased)."""
+    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+    d = p1 - p0
+    n = np.array([-d[1], d[0]]) / max(np.hypot(*d), 1e-9) * width / 2
+    fill_polygon_aa(image, np.array([p0 + n, p1 + n, p1 - n, p0 - n]), value, supersample=4)
+
+
+def _line_through(rng: np.random.Generator, h: int, w: int, point=None, angle=None):
+    """End points of a line crossing the whole (h, w) image."""
+    if point is None:
+        point = (rng.uniform(0, w), rng.uniform(0, h))
+    if angle is None:
+        angle = rng.uniform(0, math.pi)
+    d = np.array([math.cos(angle), math.sin(angle)]) * 2 * (h + w)
+    p = np.asarray(point, float)
+    return p - d, p + d
+
+
+def _background_float(rng: np.random.Generator, h: int, w: int, kind: str) -> np.ndarray:
+    if kind == "plain":
+        return np.full((h, w), rng.uniform(80, 210)) + _gradient(rng, h, w, -10, 10)
+    if kind == "sky":
+        img = _gradient(rng, h, w, rng.uniform(150, 200), rng.uniform(200, 245))
+        return img + rng.uniform(5, 20) * _smooth_noise(rng, h, w, 3)
+    if kind == "lattice":
+        img = _background_float(rng, h, w, "sky")
+        s = max(h, w)
+        steel = rng.uniform(25, 90)
+        base = rng.uniform(0, math.pi)
+        for family in range(3):
+            angle = base + family * rng.uniform(0.5, 1.3)
+            width = rng.uniform(0.03, 0.09) * s
+            for _ in range(rng.integers(1, 3)):
+                _bar(img, *_line_through(rng, h, w, angle=angle), width, steel)
+        return img
+    if kind == "lines":
+        img = _background_float(rng, h, w, "sky")
+        angle = rng.uniform(0, math.pi)
+        normal = np.array([-math.sin(angle), math.cos(angle)])
+        centre = np.array([w / 2, h / 2])
+        for _ in range(rng.integers(2, 6)):
+            offset = rng.uniform(-0.6, 0.6) * max(h, w)
+            p = centre + offset * normal
+            _bar(
+                img,
+                *_line_through(rng, h, w, point=p, angle=angle + rng.normal(0, 0.03)),
+                rng.uniform(0.8, 3.0),
+                rng.uniform(30, 90),
+            )
+        return img
+    if kind == "ground":
+        img = np.full((h, w), rng.uniform(60, 140))
+        img += rng.uniform(10, 30) * _smooth_noise(rng, h, w, 4)
+        img += rng.uniform(5, 20) * _smooth_noise(rng, h, w, 16)
+        img += rng.uniform(2, 10) * rng.standard_normal((h, w))
+        return img
+    if kind == "clutter":
+        img = _gradient(rng, h, w, rng.uniform(40, 140), rng.uniform(120, 240))
+        s = max(h, w)
+        for _ in range(rng.integers(4, 12)):
+            value = rng.uniform(0, 255)
+            cx, cy = rng.uniform(0, w), rng.uniform(0, h)
+            if rng.random() < 0.5:
+                a, b = rng.uniform(0.03, 0.3, size=2) * s
+                t = rng.uniform(0, math.pi)
+                pts = np.array([[-a, -b], [a, -b], [a, b], [-a, b]])
+                c, sn = math.cos(t), math.sin(t)
+                poly = pts @ np.array([[c, sn], [-sn, c]]) + [cx, cy]
+            else:
+                a, b = rng.uniform(0.03, 0.2, size=2) * s
+                t = np.linspace(0, 2 * math.pi, 48, endpoint=False)
+                poly = np.stack([cx + a * np.cos(t), cy + b * np.sin(t)], axis=1)
+            fill_polygon_aa(img, poly, value, supersample=2)
+        return img
+    raise ValueError(f"unknown background {kind!r}: use one of {', '.join(BACKGROUNDS)}")
+
+
+def render_background(rng: np.random.Generator, h: int, w: int, kind: str) -> np.ndarray:
+    """(h, w) uint8 gray procedural background ``kind`` (one of BACKGROUNDS), no sign."""
+    img = _background_float(rng, h, w, kind)
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+# ---------------------------------------------------------------------------
+# Disturbances
+
+
+def _motion_kernel(length_px: float, angle_rad: float) -> np.ndarray:
+    """Normalised linear motion-blur kernel of ``length_px`` along ``angle_rad``."""
+    half = int(math.ceil(length_px / 2)) + 1
+    size = 2 * half + 1
+    k = np.zeros((size, size))
+    d = np.array([math.cos(angle_rad), math.sin(angle_rad)]) * length_px / 2
+    c = np.array([half, half], float)
+    _bar(k, c - d, c + d, 1.0, 1.0)
+    return k / k.sum()
+
+
+def _add_dirt(rng: np.random.Generator, img: np.ndarray, centre, radius_px: float) -> None:
+    """Semi-transparent smudges and specks over the face (in place on a float canvas)."""
+    for _ in range(rng.integers(3, 8)):
+        layer = img.copy()
+        r = radius_px * math.sqrt(rng.uniform(0, 1))
+        a = rng.uniform(0, 2 * math.pi)
+        cx, cy = centre[0] + r * math.cos(a), centre[1] + r * math.sin(a)
+        ax, ay = rng.uniform(0.04, 0.14, size=2) * radius_px * 2
+        t = np.linspace(0, 2 * math.pi, 32, endpoint=False)
+        wobble = 1 + 0.25 * np.sin(3 * t + rng.uniform(0, 6))
+        rot = rng.uniform(0, math.pi)
+        x, y = ax * np.cos(t) * wobble, ay * np.sin(t) * wobble
+        poly = np.stack(
+            [
+                cx + x * math.cos(rot) - y * math.sin(rot),
+                cy + x * math.sin(rot) + y * math.cos(rot),
+            ],
+            axis=1,
+        )
+        fill_polygon_aa(layer, poly, rng.uniform(70, 160), supersample=2)
+        alpha = rng.uniform(0.25, 0.6)
+        img *= 1 - alpha
+        img += alpha * layer
+    h, w = img.shape
+    n = int(rng.integers(5, 20))
+    us = centre[0] + rng.uniform(-1, 1, n) * radius_px
+    vs = centre[1] + rng.uniform(-1, 1, n) * radius_px
+    for u, v in zip(us, vs, strict=True):
+        iu, iv = int(round(u)), int(round(v))
+        if 0 <= iu < w and 0 <= iv < h:
+            img[iv, iu] = 0.5 * img[iv, iu] + 0.5 * rng.uniform(60, 180)
+
+
+# ---------------------------------------------------------------------------
+# The crop
+
+
+def render_crop(
+    code: str,
+    rng: np.random.Generator,
+    *,
+    sign_px: float,
+    out_px: int | None = None,
+    rotation_deg: float = 0.0,
+    tilt_deg: float = 0.0,
+    tilt_axis_deg: float = 0.0,
+    blur_px: float = 0.0,
+    noise_sigma: float = 0.0,
+    dirt: bool = False,
+    power_line: bool = False,
+    background: str = "plain",
+    contrast: float = 1.0,
+    brightness: float = 0.0,
+    margin: float = 0.25,
+    focal_px: float = DEFAULT_FOCAL_PX,
+    psf_sigma_px: float = 0.4,
+    offset_px: tuple[float, float] = (0.0, 0.0),
+    supersample: int = 8,
+) -> SynthCrop:
+    """Render sign ``code`` in a square gray crop (a detector's region of interest).
+
+    Args:
+        code: sign code, "0000".."1111".
+        rng: the only source of randomness (background, jitter, disturbances).
+        sign_px: disc diameter seen face-on [px].
+        out_px: crop side [px]; default ``ceil(sign_px * (1 + 2 * margin))``.
+        rotation_deg: in-plane turn of the face, counter-clockwise as seen [deg].
+        tilt_deg: angle between the sign's normal and the line of sight [deg].
+        tilt_axis_deg: image direction of the tilt axis, from u toward +v [deg].
+        blur_px: length of a linear motion blur at a random direction [px].
+        noise_sigma: standard deviation of additive Gaussian noise [gray levels].
+        dirt: draw smudges and specks on the face.
+        power_line: draw a dark conductor across the sign.
+        background: one of BACKGROUNDS.
+        contrast, brightness: exposure, ``(I - 128) * contrast + 128 + brightness``.
+        margin: space around the disc on each side, as a fraction of sign_px.
+        focal_px: focal length of the pinhole camera [px] (sets the perspective).
+        psf_sigma_px: Gaussian optics blur always applied [px].
+        offset_px: shift of the sign centre from the crop centre [px].
+        supersample: sub-samples per pixel side for the polygon fill.
+
+    Returns:
+        The crop with its exact keypoints and disc ellipse.
+    """
+    validate_code(code)
+    if background not in BACKGROUNDS:
+        raise ValueError(f"unknown background {background!r}: use one of {', '.join(BACKGROUNDS)}")
+    side = int(out_px) if out_px is not None else int(math.ceil(sign_px * (1 + 2 * margin)))
+    diameter_m = 1.0
+    jitter = rng.uniform(-0.5, 0.5, size=2)
+    principal = (
+        (side - 1) / 2.0 + offset_px[0] + jitter[0],
+        (side - 1) / 2.0 + offset_px[1] + jitter[1],
+    )
+    crop_H_sign = crop_homography(
+        sign_px, rotation_deg, tilt_deg, tilt_axis_deg, principal, focal_px, diameter_m
+    )
+
+    img = _background_float(rng, side, side, background)
+    shape = sign_shape(code, diameter_m)
+    fill_polygon_aa(img, apply_homography(crop_H_sign, shape.disc), BLACK_LEVEL, supersample)
+    for corners in shape.white_parts.values():
+        fill_polygon_aa(img, apply_homography(crop_H_sign, corners), WHITE_LEVEL, supersample)
+
+    ellipse = disc_ellipse(crop_H_sign, diameter_m)
+    if dirt:
+        _add_dirt(rng, img, ellipse[0], ellipse[1][0] / 2)
+    line = None
+    if power_line:
+        angle = rng.uniform(0, math.pi)
+        through = np.asarray(ellipse[0]) + rng.uniform(-0.3, 0.3, size=2) * sign_px
+        width = rng.uniform(0.8, 2.0) * max(1.0, sign_px / 60.0)
+        value = rng.uniform(20, 80)
+        _bar(img, *_line_through(rng, side, side, point=through, angle=angle), width, value)
+        line = {"angle_deg": math.degrees(angle), "width_px": width}
+
+    blur_angle = rng.uniform(0, math.pi)
+    if blur_px > 0:
+        img = cv2.filter2D(
+            img, -1, _motion_kernel(blur_px, blur_angle), borderType=cv2.BORDER_REFLECT
+        )
+    if psf_sigma_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), psf_sigma_px, borderType=cv2.BORDER_REFLECT)
+    img = (img - 128.0) * contrast + 128.0 + brightness
+    if noise_sigma > 0:
+        img = img + rng.normal(0.0, noise_sigma, img.shape)
+    image = np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+    kps = sign_keypoints(code, diameter_m)
+    names = list(kps)
+    uv = apply_homography(crop_H_sign, np.array([kps[n][:2] for n in names]))
+    keypoints = {n: (float(p[0]), float(p[1])) for n, p in zip(names, uv, strict=True)}
+    conditions = {
+        "sign_px": float(sign_px),
+        "out_px": side,
+        "rotation_deg": float(rotation_deg),
+        "tilt_deg": float(tilt_deg),
+        "tilt_axis_deg": float(tilt_axis_deg),
+        "blur_px": float(blur_px),
+        "blur_angle_deg": math.degrees(blur_angle) if blur_px > 0 else None,
+        "noise_sigma": float(noise_sigma),
+        "dirt": bool(dirt),
+        "power_line": line,
+        "background": background,
+        "contrast": float(contrast),
+        "brightness": float(brightness),
+        "focal_px": float(focal_px),
+        "psf_sigma_px": float(psf_sigma_px),
+    }
+    return SynthCrop(
+        image=image,
+        code=code,
+        keypoints_px=keypoints,
+        ellipse=ellipse,
+        diameter_px=float(sign_px),
+        crop_H_sign=crop_H_sign,
+        diameter_m=diameter_m,
+        conditions=conditions,
+    )
