@@ -1,0 +1,375 @@
+"""Frame sources: a video file, a folder of images or an MCAP log, read lazily.
+
+Every source yields ``Frame`` objects in order. A source that stops early
+(truncated or corrupt file) ends the iteration and records where and why in
+``problems``; it does not raise. Unusable inputs (missing, empty, unknown
+format, ambiguous topic) raise InputError when the source is opened.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import os
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from estimator.camera import CameraModel
+from signpose.errors import InputError
+
+log = logging.getLogger(__name__)
+
+# FFmpeg prints decoder complaints straight to stderr; signpose reports them itself.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".m4v", ".webm", ".mpg", ".mpeg", ".ts")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
+MCAP_SUFFIXES = (".mcap",)
+TIMES_CSV_NAMES = ("frames.csv", "times.csv")
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One image of a flight.
+
+    Attributes:
+        index: frame index in the source, from 0 (counting frames yielded).
+        stamp_ns: capture time [ns] (container/log time, CSV or index / fps).
+        image: (H, W) gray or (H, W, 3) BGR uint8 image.
+    """
+
+    index: int
+    stamp_ns: int
+    image: np.ndarray
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) [px]."""
+        return (int(self.image.shape[1]), int(self.image.shape[0]))
+
+    def gray(self) -> np.ndarray:
+        """(H, W) uint8 gray image."""
+        if self.image.ndim == 2:
+            return self.image
+        return cv2.cvtColor(self.image, cv2.COLOR_BGR2GRAY)
+
+
+class FrameSource:
+    """Base of the frame sources: iterate for frames; ``len()`` may be unknown.
+
+    Attributes:
+        path: the input.
+        length: number of frames expected, or None when unknown.
+        camera: a calibration carried by the input itself (MCAP), or None.
+        problems: what stopped the reading early, one line each (after iteration).
+    """
+
+    kind = "input"
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.length: int | None = None
+        self.camera: CameraModel | None = None
+        self.problems: list[str] = []
+
+    def __iter__(self) -> Iterator[Frame]:
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        n = "?" if self.length is None else str(self.length)
+        return f"{self.kind} {self.path} ({n} frames)"
+
+    def _problem(self, text: str) -> None:
+        line = f"{self.path}: {text}"
+        self.problems.append(line)
+        log.warning("%s", line)
+
+
+# --------------------------------------------------------------------------- video
+
+
+class VideoSource(FrameSource):
+    """A video file read with ``cv2.VideoCapture``; stamps from the container."""
+
+    kind = "video"
+
+    def __init__(self, path: Path):
+        super().__init__(path)
+        cap = cv2.VideoCapture(str(path))
+        try:
+            if not cap.isOpened():
+                raise InputError(f"{path}: {_unopenable_reason(path)}")
+            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            self.fps = float(cap.get(cv2.CAP_PROP_FPS)) or 0.0
+        finally:
+            cap.release()
+        self.length = n if n > 0 else None
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.problems = []
+        cap = cv2.VideoCapture(str(self.path))
+        try:
+            index = 0
+            last_ns = -1
+            while True:
+                ok, image = cap.read()
+                if not ok or image is None:
+                    break
+                ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+                if math.isfinite(ms) and ms >= 0:
+                    stamp_ns = int(round(ms * 1e6))
+                elif self.fps > 0:
+                    stamp_ns = int(round(index / self.fps * 1e9))
+                else:
+                    stamp_ns = last_ns + 1
+                if stamp_ns <= last_ns:  # containers without times: keep stamps increasing
+                    stamp_ns = int(round(index / self.fps * 1e9)) if self.fps > 0 else last_ns + 1
+                    stamp_ns = max(stamp_ns, last_ns + 1)
+                last_ns = stamp_ns
+                yield Frame(index, stamp_ns, image)
+                index += 1
+        finally:
+            cap.release()
+        if index == 0:
+            raise InputError(f"{self.path}: video has no readable frames")
+        if self.length is not None and index < self.length:
+            self._problem(
+                f"video stopped at frame {index} of {self.length} "
+                f"(the decoder could not read further; truncated or corrupt file)"
+            )
+
+
+def _unopenable_reason(path: Path) -> str:
+    if path.suffix.lower() in (".mp4", ".mov", ".m4v"):
+        with open(path, "rb") as f:
+            head = f.read(64)
+            f.seek(0)
+            has_index = b"moov" in f.read()
+        if b"ftyp" in head and not has_index:
+            return (
+                "cannot read the video: its index (MP4 'moov' atom) is missing, so the "
+                "recording was cut off before it was finalised; no frame can be located "
+                "(recover it with a tool such as untrunc, or record to .mkv/.avi)"
+            )
+    return "cannot open as a video (unknown format or corrupt file)"
+
+
+# --------------------------------------------------------------------------- folder
+
+
+def _natural_key(name: str):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+class FolderSource(FrameSource):
+    """A folder of images, sorted by name; stamps from frames.csv/times.csv or fps."""
+
+    kind = "folder"
+
+    def __init__(self, path: Path, fps: float | None = None):
+        super().__init__(path)
+        files = sorted(
+            (p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES),
+            key=lambda p: _natural_key(p.name),
+        )
+        if not files:
+            raise InputError(
+                f"{path}: folder has no images ({', '.join(IMAGE_SUFFIXES)}); nothing to process"
+            )
+        csv_path = next((path / n for n in TIMES_CSV_NAMES if (path / n).is_file()), None)
+        if fps is not None:
+            if not (math.isfinite(fps) and fps > 0):
+                raise InputError(f"--fps must be a number > 0, got {fps}")
+            self.items = [(p, int(round(i / fps * 1e9))) for i, p in enumerate(files)]
+        elif csv_path is not None:
+            self.items = _read_times_csv(csv_path, {p.name: p for p in files})
+        else:
+            raise InputError(
+                f"{path}: no frame times; add frames.csv (columns filename,stamp_ns) or pass --fps"
+            )
+        self.length = len(self.items)
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.problems = []
+        index = 0
+        for p, stamp_ns in self.items:
+            image = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                self._problem(f"{p.name}: cannot read image; skipped")
+                continue
+            if image.ndim == 3 and image.shape[2] == 4:
+                image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+            if image.dtype != np.uint8:
+                image = (image / 257).astype(np.uint8)
+            yield Frame(index, stamp_ns, image)
+            index += 1
+        if index == 0:
+            raise InputError(f"{self.path}: none of the images could be read")
+
+
+def _read_times_csv(csv_path: Path, files: dict[str, Path]) -> list[tuple[Path, int]]:
+    try:
+        text = csv_path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{csv_path}: cannot read ({exc})") from None
+    reader = csv.reader(text.splitlines())
+    header = next(reader, None)
+    if header is None or [h.strip() for h in header[:2]] != ["filename", "stamp_ns"]:
+        raise InputError(f"{csv_path}: first line must be the header 'filename,stamp_ns'")
+    items = []
+    for lineno, row in enumerate(reader, start=2):
+        if not row or not "".join(row).strip():
+            continue
+        if len(row) < 2:
+            raise InputError(f"{csv_path}: line {lineno}: expected 'filename,stamp_ns'")
+        name, stamp = row[0].strip(), row[1].strip()
+        try:
+            stamp_ns = int(stamp)
+        except ValueError:
+            raise InputError(
+                f"{csv_path}: line {lineno}: stamp_ns {stamp!r} is not an integer"
+            ) from None
+        p = files.get(Path(name).name)
+        if p is None:
+            raise InputError(f"{csv_path}: line {lineno}: image {name!r} is not in the folder")
+        items.append((p, stamp_ns))
+    if not items:
+        raise InputError(f"{csv_path}: lists no frames")
+    items.sort(key=lambda item: item[1])
+    return items
+
+
+# --------------------------------------------------------------------------- MCAP
+
+
+class McapSource(FrameSource):
+    """Images of one topic of an MCAP log; the camera from a calibration channel if any."""
+
+    kind = "mcap"
+
+    def __init__(self, path: Path, topic: str | None = None):
+        from signpose import mcap_io
+
+        super().__init__(path)
+        self.log = mcap_io.McapLog(path)
+        images = self.log.image_channels()
+        listed = ", ".join(c.describe() for c in self.log.channels) or "none"
+        if topic is not None:
+            ch = self.log.channel(topic)
+            if ch is None:
+                available = ", ".join(c.topic for c in images) or "none"
+                raise InputError(
+                    f"{path}: no topic '{topic}'; image topics in the log: {available}"
+                )
+            if not ch.is_image:
+                raise InputError(
+                    f"{path}: topic '{topic}' holds {ch.schema_name or 'unknown messages'}, "
+                    f"not images; image topics: {', '.join(c.topic for c in images) or 'none'}"
+                )
+        elif not images:
+            raise InputError(
+                f"{path}: no image topic (foxglove.CompressedImage/RawImage, "
+                f"sensor_msgs/msg/CompressedImage/Image); topics in the log: {listed}"
+            )
+        elif len(images) > 1:
+            raise InputError(
+                f"{path}: several image topics ({', '.join(c.topic for c in images)}); "
+                "choose one with --topic"
+            )
+        else:
+            ch = images[0]
+        self.topic = ch.topic
+        self.schema_name = ch.schema_name
+        self.length = ch.message_count
+        if ch.message_count == 0:
+            raise InputError(f"{path}: topic {ch.topic} has no messages")
+        self.camera = self._find_camera()
+        if self.log.problem:
+            self._problem(self.log.problem)
+
+    def _find_camera(self) -> CameraModel | None:
+        from signpose import mcap_io
+
+        cams = [c for c in self.log.channels if c.is_camera]
+        if not cams:
+            return None
+        for msg in self.log.messages([cams[0].topic]):
+            return mcap_io.camera_from_message(msg.schema_name, msg.decoded, str(self.path))
+        return None
+
+    def __iter__(self) -> Iterator[Frame]:
+        from signpose import mcap_io
+
+        self.problems = []
+        index = 0
+        last_ns = -1
+        for msg in self.log.messages([self.topic]):
+            image, reason = mcap_io.image_from_message(msg.schema_name, msg.decoded)
+            if image is None:
+                self._problem(
+                    f"{self.topic}: message {index + len(self.problems)}: {reason}; skipped"
+                )
+                continue
+            stamp_ns = mcap_io.message_stamp_ns(msg.schema_name, msg.decoded)
+            if stamp_ns is None or stamp_ns == 0:
+                stamp_ns = msg.log_time_ns
+            stamp_ns = max(stamp_ns, last_ns + 1)
+            last_ns = stamp_ns
+            yield Frame(index, stamp_ns, image)
+            index += 1
+        if self.log.problem:
+            self._problem(f"{self.log.problem} (read {index} images of {self.topic})")
+        if index == 0:
+            raise InputError(f"{self.path}: no readable image on {self.topic}")
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def open_source(
+    path: str | Path, *, topic: str | None = None, fps: float | None = None
+) -> FrameSource:
+    """Open a video file, a folder of images or an MCAP log by what ``path`` is.
+
+    Args:
+        path: the input.
+        topic: MCAP image topic (needed when the log has several).
+        fps: frame rate for a folder without a times CSV (overrides the CSV).
+
+    Raises:
+        InputError: missing, empty or unknown input, or an ambiguous topic.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: input not found")
+    if p.is_dir():
+        return FolderSource(p, fps=fps)
+    if p.stat().st_size == 0:
+        raise InputError(f"{p}: input file is empty")
+    suffix = p.suffix.lower()
+    if suffix in MCAP_SUFFIXES or _has_mcap_magic(p):
+        return McapSource(p, topic=topic)
+    if suffix in IMAGE_SUFFIXES:
+        raise InputError(f"{p}: a single image; pass the folder that holds the frames")
+    return VideoSource(p)
+
+
+def _has_mcap_magic(p: Path) -> bool:
+    try:
+        with open(p, "rb") as f:
+            return f.read(8) == b"\x89MCAP0\r\n"
+    except OSError:
+        return False
+
+
+def check_source_camera(source_name: str, camera: CameraModel, image_size: tuple[int, int]) -> None:
+    """InputError when the images are not the camera's size (estimator.camera.check_image_size)."""
+    from estimator.camera import check_image_size
+
+    check_image_size(camera, image_size[0], image_size[1], source_name)
