@@ -1,0 +1,285 @@
+"""Result plots as PNG (matplotlib, Agg backend), each written atomically.
+
+World frame: the map's, z up, metres. Trajectories are ``world_T_cam`` per
+stamp; frames without an estimate carry NaN positions and leave gaps.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
+
+from estimator.tum import Trajectory  # noqa: E402
+from maps.loader import SignMap  # noqa: E402
+from signpose.fileio import atomic_path  # noqa: E402
+
+_COLORS = {"groundtruth": "0.2", "baseline": "#d95319", "smoothed": "#0072bd"}
+_EXTRA = ("#77ac30", "#7e2f8e", "#edb120")
+SIGMA_BAND = 2.0  # bands are +-2 sigma
+
+
+@dataclass(frozen=True)
+class PlotData:
+    """What the plots show.
+
+    Attributes:
+        sign_map: the signs (drawn as discs with their codes).
+        trajectories: method -> estimate; rows may be NaN where a frame has none.
+        sigmas_m: method -> (N, 3) standard deviation of the position per stamp
+            of that method's trajectory [m], world axes; methods may be missing.
+        groundtruth: the true trajectory, or None.
+        frame_stamps_s: (F,) time of every processed frame [s].
+        signs_per_frame: (F,) number of decoded map signs per processed frame.
+    """
+
+    sign_map: SignMap
+    trajectories: dict[str, Trajectory]
+    sigmas_m: dict[str, np.ndarray] = field(default_factory=dict)
+    groundtruth: Trajectory | None = None
+    frame_stamps_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    signs_per_frame: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+
+
+def _color(name: str, i: int) -> str:
+    return _COLORS.get(name, _EXTRA[i % len(_EXTRA)])
+
+
+def _save(fig, path: Path) -> Path:
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
+    return path
+
+
+def _t0(data: PlotData) -> float:
+    starts = [t.stamps_s[0] for t in data.trajectories.values() if len(t)]
+    if data.groundtruth is not None and len(data.groundtruth):
+        starts.append(data.groundtruth.stamps_s[0])
+    if len(data.frame_stamps_s):
+        starts.append(data.frame_stamps_s[0])
+    return float(min(starts)) if starts else 0.0
+
+
+def _disc(center: np.ndarray, world_R_sign: np.ndarray | None, diameter: float) -> np.ndarray:
+    a = np.linspace(0, 2 * np.pi, 32, endpoint=False)
+    if world_R_sign is None:  # centre-only sign: draw it facing +y
+        world_R_sign = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, 1.0, 0]])
+    local = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1) * diameter / 2
+    return center + local @ world_R_sign.T
+
+
+def plot_trajectory_3d(path: str | os.PathLike, data: PlotData, method: str | None = None) -> Path:
+    """The paper's Fig. 13: the trajectory in 3D coloured by time, with the signs."""
+    fig = plt.figure(figsize=(8, 7))
+    ax = fig.add_subplot(projection="3d")
+    names = list(data.trajectories)
+    name = method or ("smoothed" if "smoothed" in names else (names[0] if names else None))
+    t0 = _t0(data)
+    pts_all = [data.sign_map.centers_m()]
+    for sign in data.sign_map.signs:
+        R = sign.world_R_sign() if sign.oriented else None
+        disc = _disc(sign.center_m, R, sign.diameter_m)
+        ax.add_collection3d(Poly3DCollection([disc], facecolor="0.85", edgecolor="k", lw=0.5))
+        ax.text(*(sign.center_m + [0, 0, 0.7 * sign.diameter_m]), sign.code, fontsize=7)
+    if data.groundtruth is not None:
+        p = data.groundtruth.world_t_cam
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], color="0.5", lw=0.8, ls="--", label="ground truth")
+        pts_all.append(p)
+    if name is not None:
+        traj = data.trajectories[name]
+        p = traj.world_t_cam
+        ok = np.all(np.isfinite(p), axis=1)
+        segs = np.stack([p[:-1], p[1:]], axis=1)
+        seg_ok = ok[:-1] & ok[1:]
+        if np.any(seg_ok):
+            t = traj.stamps_s[:-1][seg_ok] - t0
+            lc = Line3DCollection(segs[seg_ok], cmap="viridis", lw=2.0)
+            lc.set_array(t)
+            ax.add_collection3d(lc)
+            fig.colorbar(lc, ax=ax, shrink=0.6, label="time [s]")
+            pts_all.append(p[ok])
+        ax.set_title(f"{name} trajectory, coloured by time")
+    pts = np.concatenate([q for q in pts_all if len(q)])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    pad = 0.05 * max(float(np.max(hi - lo)), 1.0)
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_zlim(lo[2] - pad, hi[2] + pad)
+    ax.set_box_aspect(np.maximum(hi - lo + 2 * pad, 1e-3))
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    if data.groundtruth is not None:
+        ax.legend(loc="upper left")
+    return _save(fig, Path(path))
+
+
+def plot_views(path: str | os.PathLike, data: PlotData) -> Path:
+    """Top (x-y) and side (y-z) views of every method, and x, y, z over time with sigma bands.
+
+    The views are zoomed on the flight; the signs are in the 3D plot.
+    """
+    fig = plt.figure(figsize=(13, 8))
+    grid = fig.add_gridspec(3, 2, width_ratios=[1.0, 1.3])
+    top = fig.add_subplot(grid[0:2, 0])
+    side = fig.add_subplot(grid[2, 0])
+    axes_t = [fig.add_subplot(grid[k, 1]) for k in range(3)]
+    t0 = _t0(data)
+    if data.groundtruth is not None:
+        g = data.groundtruth.world_t_cam
+        top.plot(g[:, 0], g[:, 1], color="0.5", ls="--", lw=1, label="ground truth")
+        side.plot(g[:, 1], g[:, 2], color="0.5", ls="--", lw=1)
+        for k in range(3):
+            axes_t[k].plot(data.groundtruth.stamps_s - t0, g[:, k], color="0.5", ls="--", lw=1)
+    for i, (name, traj) in enumerate(data.trajectories.items()):
+        c = _color(name, i)
+        p = traj.world_t_cam
+        t = traj.stamps_s - t0
+        top.plot(p[:, 0], p[:, 1], color=c, lw=1.2, label=name)
+        side.plot(p[:, 1], p[:, 2], color=c, lw=1.2)
+        sigma = data.sigmas_m.get(name)
+        if sigma is not None and len(sigma) == len(p):
+            step = max(1, len(p) // 25)
+            sel = slice(None, None, step)
+            top.errorbar(
+                p[sel, 0],
+                p[sel, 1],
+                xerr=SIGMA_BAND * sigma[sel, 0],
+                yerr=SIGMA_BAND * sigma[sel, 1],
+                fmt="none",
+                ecolor=c,
+                alpha=0.5,
+                lw=0.8,
+            )
+            side.errorbar(
+                p[sel, 1],
+                p[sel, 2],
+                xerr=SIGMA_BAND * sigma[sel, 1],
+                yerr=SIGMA_BAND * sigma[sel, 2],
+                fmt="none",
+                ecolor=c,
+                alpha=0.5,
+                lw=0.8,
+            )
+        for k in range(3):
+            axes_t[k].plot(t, p[:, k], color=c, lw=1.0, label=name)
+            if sigma is not None and len(sigma) == len(p):
+                axes_t[k].fill_between(
+                    t,
+                    p[:, k] - SIGMA_BAND * sigma[:, k],
+                    p[:, k] + SIGMA_BAND * sigma[:, k],
+                    color=c,
+                    alpha=0.2,
+                    lw=0,
+                )
+    top.set_title("top view")
+    top.set_xlabel("x [m]")
+    top.set_ylabel("y [m]")
+    top.set_aspect("equal", adjustable="datalim")
+    top.legend(fontsize=8)
+    side.set_title("side view")
+    side.set_xlabel("y [m]")
+    side.set_ylabel("z [m]")
+    side.set_aspect("equal", adjustable="datalim")
+    for k, axis in enumerate("xyz"):
+        axes_t[k].set_ylabel(f"{axis} [m]")
+        axes_t[k].grid(alpha=0.3)
+    axes_t[0].set_title(f"position over time (bands: +-{SIGMA_BAND:g} sigma)")
+    axes_t[0].legend(fontsize=8)
+    axes_t[2].set_xlabel("time [s]")
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+def _associate(traj: Trajectory, gt: Trajectory, tol_s: float = 1e-3) -> tuple:
+    """Indices (i_est, i_gt) of stamps that match within ``tol_s``."""
+    j = np.searchsorted(gt.stamps_s, traj.stamps_s)
+    j = np.clip(j, 1, len(gt) - 1) if len(gt) > 1 else np.zeros_like(j)
+    if len(gt) > 1:
+        left_closer = np.abs(gt.stamps_s[j - 1] - traj.stamps_s) < np.abs(
+            gt.stamps_s[j] - traj.stamps_s
+        )
+        j = np.where(left_closer, j - 1, j)
+    ok = np.abs(gt.stamps_s[j] - traj.stamps_s) <= tol_s
+    return np.nonzero(ok)[0], j[ok]
+
+
+def pose_errors(traj: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(stamps [s], position error [m], rotation error [deg]) at the stamps both have."""
+    i, j = _associate(traj, gt)
+    dp = np.linalg.norm(traj.world_t_cam[i] - gt.world_t_cam[j], axis=1)
+    Ra, Rb = traj.world_R_cam()[i], gt.world_R_cam()[j]
+    cos = (np.einsum("nij,nij->n", Ra, Rb) - 1.0) / 2.0
+    dr = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return traj.stamps_s[i], dp, dr
+
+
+def plot_errors(path: str | os.PathLike, data: PlotData) -> Path | None:
+    """Position and rotation error over time against the ground truth (None without it)."""
+    if data.groundtruth is None:
+        return None
+    fig, (ax_p, ax_r) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    t0 = _t0(data)
+    for i, (name, traj) in enumerate(data.trajectories.items()):
+        t, dp, dr = pose_errors(traj, data.groundtruth)
+        c = _color(name, i)
+        ok = np.isfinite(dp)
+        med = float(np.median(dp[ok])) if np.any(ok) else float("nan")
+        ax_p.plot(t - t0, dp, color=c, lw=1.0, label=f"{name} (median {med:.3f} m)")
+        ax_r.plot(t - t0, dr, color=c, lw=1.0, label=name)
+    ax_p.set_ylabel("position error [m]")
+    ax_r.set_ylabel("rotation error [deg]")
+    ax_r.set_xlabel("time [s]")
+    ax_p.set_yscale("log")
+    ax_p.set_title("error against ground truth")
+    for ax in (ax_p, ax_r):
+        ax.grid(alpha=0.3)
+    ax_p.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+def plot_signs_per_frame(path: str | os.PathLike, data: PlotData) -> Path:
+    """Number of decoded map signs in every frame."""
+    fig, ax = plt.subplots(figsize=(10, 3.2))
+    t = data.frame_stamps_s - _t0(data)
+    n = np.asarray(data.signs_per_frame)
+    ax.step(t, n, where="mid", color="#0072bd", lw=1.0)
+    ax.fill_between(t, 0, n, step="mid", color="#0072bd", alpha=0.25)
+    lost = n == 0
+    if np.any(lost):
+        ax.plot(t[lost], np.zeros(int(lost.sum())), "|", color="#d95319", label="no sign")
+        ax.legend(fontsize=8)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("signs seen")
+    top = int(n.max()) if len(n) else 1
+    ax.set_ylim(0, max(top, 1) + 0.5)
+    ax.set_title(f"signs seen per frame (mean {float(n.mean()) if len(n) else 0.0:.1f})")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, Path(path))
+
+
+def write_plots(out_dir: str | os.PathLike, data: PlotData) -> list[Path]:
+    """All plots into ``out_dir``: trajectory_3d, views, signs_per_frame, errors (with GT)."""
+    out = Path(out_dir)
+    written = [
+        plot_trajectory_3d(out / "trajectory_3d.png", data),
+        plot_views(out / "views.png", data),
+        plot_signs_per_frame(out / "signs_per_frame.png", data),
+    ]
+    err = plot_errors(out / "errors.png", data)
+    if err is not None:
+        written.append(err)
+    return written
