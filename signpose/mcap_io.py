@@ -362,9 +362,11 @@ class McapJsonWriter:
 class McapFrameWriter:
     """The simulator's ``--format mcap`` output: images, ground truth and the camera.
 
-    Topics: ``/camera/image/compressed`` (foxglove.CompressedImage, JPEG),
-    ``/groundtruth/pose`` (foxglove.PoseInFrame, world_T_cam), ``/camera/calibration``
-    (foxglove.CameraCalibration, once, before the first image) and ``/tf``.
+    Implements ``signpose.simulate.FrameWriter``. Topics: ``/camera/image/compressed``
+    (foxglove.CompressedImage, JPEG), ``/camera/calibration`` (foxglove.CameraCalibration,
+    once, before the first image), and, when the true poses are given,
+    ``/groundtruth/pose`` (foxglove.PoseInFrame, world_T_cam) and ``/tf``
+    (foxglove.FrameTransforms world -> camera).
     """
 
     def __init__(
@@ -372,19 +374,29 @@ class McapFrameWriter:
         path: str | os.PathLike,
         camera: CameraModel,
         world_frame: str = "world",
+        world_T_cams: np.ndarray | None = None,
         jpeg_quality: int = 90,
         chunk_size: int = 256 * 1024,
     ):
+        """Args:
+        path: the ``.mcap`` to write (appears on ``close()``).
+        camera: the camera of the images.
+        world_frame: name of the world frame (the map's ``frame``).
+        world_T_cams: (N, 4, 4) true camera pose of frame i, or None.
+        jpeg_quality: JPEG quality of the images.
+        chunk_size: MCAP chunk size [bytes]; small chunks lose less to truncation.
+        """
         self._writer = McapJsonWriter(path, chunk_size=chunk_size)
         self.path = self._writer.path
         self.camera = camera
         self.world_frame = world_frame
+        self.world_T_cams = None if world_T_cams is None else np.asarray(world_T_cams, float)
         self.jpeg_quality = jpeg_quality
         self._calibrated = False
         self.frames_written = 0
 
-    def write(self, stamp_ns: int, image: np.ndarray, world_T_cam: np.ndarray | None) -> None:
-        """One frame: (H, W) gray or (H, W, 3) BGR image and its true pose (4, 4) or None."""
+    def write(self, frame_index: int, stamp_ns: int, bgr: np.ndarray) -> None:
+        """One frame: (H, W, 3) BGR or (H, W) gray image at ``stamp_ns``."""
         if not self._calibrated:
             self._writer.write(
                 CALIBRATION_TOPIC,
@@ -393,25 +405,28 @@ class McapFrameWriter:
                 stamp_ns,
             )
             self._calibrated = True
-        msg = compressed_image(stamp_ns, image, quality=self.jpeg_quality)
+        msg = compressed_image(stamp_ns, bgr, quality=self.jpeg_quality)
         self._writer.write(IMAGE_TOPIC, "CompressedImage", msg, stamp_ns)
-        if world_T_cam is not None:
+        poses = self.world_T_cams
+        if poses is not None and 0 <= frame_index < len(poses):
+            T = poses[frame_index]
             self._writer.write(
                 GROUNDTRUTH_TOPIC,
                 "PoseInFrame",
-                pose_in_frame(stamp_ns, self.world_frame, world_T_cam),
+                pose_in_frame(stamp_ns, self.world_frame, T),
                 stamp_ns,
             )
             self._writer.write(
                 TF_TOPIC,
                 "FrameTransforms",
-                frame_transforms(stamp_ns, self.world_frame, CAMERA_FRAME, world_T_cam),
+                frame_transforms(stamp_ns, self.world_frame, CAMERA_FRAME, T),
                 stamp_ns,
             )
         self.frames_written += 1
 
-    def close(self) -> None:
+    def close(self) -> Path:
         self._writer.close()
+        return self.path
 
     def abort(self) -> None:
         self._writer.abort()

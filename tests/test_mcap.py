@@ -43,9 +43,9 @@ def _poses(n: int) -> np.ndarray:
 def _write_flight(path: Path, rng: np.random.Generator, n: int = 5) -> tuple:
     camera = pinhole_camera(64, 48, 60.0)
     stamps = [1_000_000_000 + i * 100_000_000 for i in range(n)]
-    with mcap_io.McapFrameWriter(path, camera, world_frame="demo_pylon") as writer:
-        for t, img, T in zip(stamps, _images(rng, n), _poses(n), strict=True):
-            writer.write(t, img, T)
+    with mcap_io.McapFrameWriter(path, camera, "demo_pylon", _poses(n)) as writer:
+        for i, (t, img) in enumerate(zip(stamps, _images(rng, n), strict=True)):
+            writer.write(i, t, img)
     return camera, stamps
 
 
@@ -288,7 +288,7 @@ def test_truncated_mcap_reads_what_is_there(tmp_path):
     # Small chunks, so that a cut keeps most frames.
     with mcap_io.McapFrameWriter(path, camera, chunk_size=4096) as writer:
         for i, img in enumerate(_images(rng, n)):
-            writer.write(i * 1000, img, None)
+            writer.write(i, i * 1000, img)
     data = path.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) * 2 // 3])
