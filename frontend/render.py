@@ -1,0 +1,437 @@
+"""Synthetic camera frames of signs on a pylon (the image side of the flight simulator).
+
+This module only draws. The caller (``signpose.simulate``) owns the camera
+model and projects every 3D element -- the sign faces, dirt and occluders on
+them, lattice members, conductors -- into raw (distorted) pixels; this module
+receives those 2D polygons and polylines and turns them into a BGR frame:
+
+    sky and ground (once-per-flight textures, re-projected per frame)
+    -> lattice members and far conductors -> motion blur of that layer
+    -> each sign, rendered in its own bounding box (anti-aliased, supersampled,
+       blurred with its own motion) -> conductors in front of the signs
+    -> lighting gain/offset -> sensor noise -> JPEG round trip.
+
+Pixels: u right, v down, pixel centres at integer coordinates (as in
+``frontend.sign``). Intensities are on a 0..255 scale before quantisation.
+
+The sky and ground are drawn through an ideal pinhole with the camera's K
+(lens distortion is ignored there: they carry no measured geometry); all
+projected geometry passed in by the caller includes the distortion.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from frontend.sign import fill_polygon_aa
+
+# Paint reflectances on the 0..255 scale: matt black and white sign faces.
+SIGN_BLACK = 28.0
+SIGN_WHITE = 226.0
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """How a frame is rendered (defaults: the realistic flight).
+
+    Attributes:
+        supersample: sub-samples per pixel side for sign polygons.
+        blur: apply motion blur from the per-sign / background image motion.
+        noise_sigma: standard deviation of the additive sensor noise [DN]; 0 = off.
+        jpeg_quality: JPEG encode/decode round trip quality (1..100), None = off.
+        background: draw sky, ground, lattice and conductors; False gives a flat
+            mid-grey background (clean frames for geometry tests).
+        lighting: apply the global gain/offset passed to ``compose_frame``.
+    """
+
+    supersample: int = 4
+    blur: bool = True
+    noise_sigma: float = 2.5
+    jpeg_quality: int | None = 90
+    background: bool = True
+    lighting: bool = True
+
+
+@dataclass(frozen=True)
+class ProjectedLine:
+    """A thin structure (lattice member, conductor) projected into the image.
+
+    Attributes:
+        points_px: (N, 2) polyline in raw pixels, N >= 2.
+        widths_px: (N - 1,) drawn width of each segment [px].
+        bgr: colour on the 0..255 scale.
+    """
+
+    points_px: np.ndarray
+    widths_px: np.ndarray
+    bgr: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class ProjectedSign:
+    """One sign face as the caller projected it for this frame.
+
+    Attributes:
+        code: the sign's code (for bookkeeping only).
+        disc_px: (N, 2) black disc outline in raw pixels (densely sampled so
+            that lens distortion is respected).
+        white_px: (M_k, 2) outlines of the white rectangles in raw pixels.
+        dirt_px: (polygon (P, 2) px, intensity 0..255, opacity 0..1) stains
+            on the face, clipped to the disc when drawn.
+        occluders_px: (polygon (P, 2) px, intensity 0..255) opaque objects in
+            front of the face.
+        motion_px: (2,) image motion of the sign centre during the exposure
+            [px]; the blur kernel is this segment, centred on the sign.
+    """
+
+    code: str
+    disc_px: np.ndarray
+    white_px: tuple[np.ndarray, ...]
+    dirt_px: tuple[tuple[np.ndarray, float, float], ...] = ()
+    occluders_px: tuple[tuple[np.ndarray, float], ...] = ()
+    motion_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+
+def _value_noise(rng: np.random.Generator, shape: tuple[int, int], cells: list[int]) -> np.ndarray:
+    """Smooth multi-octave noise in about [-1, 1], tileable, float32 of ``shape``."""
+    h, w = shape
+    out = np.zeros(shape, np.float32)
+    amp, total = 1.0, 0.0
+    for c in cells:
+        small = rng.standard_normal((c, max(1, c * w // h))).astype(np.float32)
+        # Wrap one cell so the resized field tiles seamlessly.
+        small = np.concatenate([small, small[:1]], axis=0)
+        small = np.concatenate([small, small[:, :1]], axis=1)
+        big = cv2.resize(
+            small, (w + w // (small.shape[1] - 1), h + h // (small.shape[0] - 1)), cv2.INTER_CUBIC
+        )
+        out += amp * big[:h, :w]
+        total += amp
+        amp *= 0.55
+    return out / total
+
+
+class Backdrop:
+    """Once-per-flight background layers: sky panorama, ground texture, noise bank.
+
+    Built from a seed; per frame ``sky_and_ground`` re-projects them for a pose.
+
+    Args:
+        width, height: frame size [px].
+        seed: seeds every texture.
+        ground_m_per_px: ground texture resolution [m/px].
+    """
+
+    SKY_W, SKY_H = 2048, 512  # azimuth 0..360 deg x elevation 90..0 deg
+    GROUND_PX = 2048
+    NOISE_PAD = 64
+    BG_SCALE = 4
+
+    def __init__(self, width: int, height: int, seed: int = 0, ground_m_per_px: float = 0.25):
+        self.width, self.height = int(width), int(height)
+        self.ground_m_per_px = float(ground_m_per_px)
+        rng = np.random.default_rng(seed)
+        self.sky = self._make_sky(rng)
+        self.ground = self._make_ground(rng)
+        self.haze_bgr = np.array([222.0, 214.0, 205.0], np.float32)
+        # Noise bank: N(0, 1) scaled by 16 around 128, cropped at a random offset per frame.
+        z = rng.standard_normal(
+            (self.height + self.NOISE_PAD, self.width + self.NOISE_PAD, 3), dtype=np.float32
+        )
+        self.noise_u8 = np.clip(128.0 + 16.0 * z, 0, 255).astype(np.uint8)
+
+    def _make_sky(self, rng: np.random.Generator) -> np.ndarray:
+        h, w = self.SKY_H, self.SKY_W
+        el = (1.0 - (np.arange(h, dtype=np.float32) + 0.5) / h)[:, None]  # 1 at zenith, 0 horizon
+        zenith = np.array([190.0, 140.0, 95.0], np.float32)
+        horizon = np.array([225.0, 215.0, 205.0], np.float32)
+        t = np.sqrt(el)[..., None]
+        sky = horizon * (1 - t) + zenith * t
+        sky = np.broadcast_to(sky, (h, w, 3)).copy()
+        clouds = _value_noise(rng, (h, w), [4, 8, 16, 32, 64])
+        cover = np.clip((clouds - 0.05) * 2.5, 0.0, 1.0)[..., None] * 0.85
+        cloud_bgr = np.array([235.0, 235.0, 235.0], np.float32) - 25.0 * np.clip(
+            clouds[..., None], 0, 1
+        )
+        return (sky * (1 - cover) + cloud_bgr * cover).astype(np.float32)
+
+    def _make_ground(self, rng: np.random.Generator) -> np.ndarray:
+        n = self.GROUND_PX
+        base = _value_noise(rng, (n, n), [8, 16, 32, 64, 128, 256])
+        fields = _value_noise(rng, (n, n), [6, 12])
+        grass = np.array([60.0, 120.0, 95.0], np.float32)
+        soil = np.array([75.0, 105.0, 135.0], np.float32)
+        mix = np.clip(0.5 + 1.5 * fields, 0, 1)[..., None]
+        tex = grass * (1 - mix) + soil * mix
+        tex *= (1.0 + 0.35 * base)[..., None]
+        # A few tracks across the fields.
+        for _ in range(6):
+            p = rng.uniform(0, n, 2)
+            a = rng.uniform(0, np.pi)
+            d = np.array([np.cos(a), np.sin(a)]) * n * 2
+            cv2.line(
+                tex,
+                tuple(int(v) for v in p - d),
+                tuple(int(v) for v in p + d),
+                (150.0, 165.0, 175.0),
+                int(rng.integers(3, 9)),
+                cv2.LINE_AA,
+            )
+        return cv2.GaussianBlur(tex, (0, 0), 0.8)
+
+    def sky_and_ground(self, K: np.ndarray, world_T_cam: np.ndarray) -> np.ndarray:
+        """(H, W, 3) uint8 BGR sky and ground as seen from ``world_T_cam`` (world z up).
+
+        Computed at 1/``BG_SCALE`` resolution and upscaled (the background is soft
+        anyway; the lattice and conductors are drawn at full resolution).
+        """
+        sc = self.BG_SCALE
+        hw, hh = -(-self.width // sc), -(-self.height // sc)
+        u = (np.arange(hw, dtype=np.float32) * sc + 0.5 * (sc - 1))[None, :]
+        v = (np.arange(hh, dtype=np.float32) * sc + 0.5 * (sc - 1))[:, None]
+        Ki = np.linalg.inv(K)
+        R = world_T_cam[:3, :3].astype(np.float32)
+        # Ray direction in the camera frame, then in the world.
+        xc = (Ki[0, 0] * u + Ki[0, 2]).astype(np.float32)
+        yc = (Ki[1, 1] * v + Ki[1, 2]).astype(np.float32)
+        dx = R[0, 0] * xc + R[0, 1] * yc + R[0, 2]
+        dy = R[1, 0] * xc + R[1, 1] * yc + R[1, 2]
+        dz = R[2, 0] * xc + R[2, 1] * yc + R[2, 2]
+        horiz = np.sqrt(dx * dx + dy * dy) + 1e-9
+        el = np.arctan2(dz, horiz)
+        az = np.arctan2(dy, dx)
+        # Sky: panorama lookup by azimuth / elevation.
+        map_x = ((az / (2 * np.pi)) % 1.0) * self.SKY_W
+        map_y = (1.0 - np.clip(el, 0.0, np.pi / 2) / (np.pi / 2)) * self.SKY_H - 0.5
+        sky = cv2.remap(
+            self.sky, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_WRAP,
+        )  # fmt: skip
+        # Ground: intersect rays with z = 0.
+        cam = world_T_cam[:3, 3]
+        h = max(float(cam[2]), 0.5)
+        down = np.minimum(dz, -1e-4)
+        s = h / -down
+        gx = (cam[0] + s * dx) / self.ground_m_per_px
+        gy = (cam[1] + s * dy) / self.ground_m_per_px
+        n = float(self.GROUND_PX)
+        gx = np.mod(gx, n).astype(np.float32)
+        gy = np.mod(gy, n).astype(np.float32)
+        ground = cv2.remap(self.ground, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        # Aerial perspective: the ground fades into haze toward the horizon.
+        dist = s * horiz
+        haze = (1.0 - np.exp(-dist / 900.0))[..., None]
+        ground = ground * (1 - haze) + self.haze_bgr * haze
+        # Soft horizon (half a degree) between ground and sky.
+        w_sky = np.clip(0.5 + el / np.radians(0.5), 0.0, 1.0)[..., None]
+        img = sky * w_sky + ground * (1 - w_sky)
+        small = np.clip(img, 0, 255).astype(np.uint8)
+        # Sample positions above are the block centres, so a plain resize aligns them.
+        big = cv2.resize(small, (hw * sc, hh * sc), interpolation=cv2.INTER_LINEAR)
+        return np.ascontiguousarray(big[: self.height, : self.width])
+
+
+def line_kernel(motion_px: np.ndarray) -> np.ndarray | None:
+    """Normalised float32 motion-blur kernel: the segment ``motion_px`` centred on the origin.
+
+    Symmetric about its centre pixel, so blurring moves no centroid. Returns
+    None when the motion is under half a pixel.
+    """
+    m = np.asarray(motion_px, dtype=float).reshape(2)
+    length = float(np.hypot(*m))
+    if not np.isfinite(length) or length < 0.5:
+        return None
+    half = int(math.ceil(max(abs(m[0]), abs(m[1])) / 2.0)) + 1
+    k = 2 * half + 1
+    ker = np.zeros((k, k), np.float32)
+    n = max(int(math.ceil(length * 4)), 2) + 1
+    for t in np.linspace(-0.5, 0.5, n):
+        x, y = half + t * m[0], half + t * m[1]
+        x0, y0 = int(math.floor(x)), int(math.floor(y))
+        fx, fy = x - x0, y - y0
+        ker[y0, x0] += (1 - fx) * (1 - fy)
+        ker[y0, x0 + 1] += fx * (1 - fy)
+        ker[y0 + 1, x0] += (1 - fx) * fy
+        ker[y0 + 1, x0 + 1] += fx * fy
+    # Bilinear splats of symmetric samples are symmetric up to rounding; force it.
+    ker = 0.5 * (ker + ker[::-1, ::-1])
+    return ker / ker.sum()
+
+
+def _draw_lines(image: np.ndarray, lines: list[ProjectedLine], mask_mode: bool = False) -> None:
+    """Draw anti-aliased polylines into uint8 ``image`` in place.
+
+    With ``mask_mode`` the image is a single-channel coverage mask and each
+    segment paints 255 (scaled down for sub-pixel widths); otherwise it paints
+    the line's colour, faded toward the sky's haze for sub-pixel widths.
+    Consecutive segments of equal drawn width go to one ``cv2.polylines`` call.
+    """
+    h, w = image.shape[:2]
+    shift = 4
+    scale = 1 << shift
+    lim = 8 * max(h, w)
+    haze = (215.0, 210.0, 205.0)
+    for line in lines:
+        pts = np.asarray(line.points_px, dtype=float).reshape(-1, 2)
+        a, b = pts[:-1], pts[1:]
+        inside = ~(
+            (np.maximum(a[:, 0], b[:, 0]) < -20)
+            | (np.minimum(a[:, 0], b[:, 0]) > w + 20)
+            | (np.maximum(a[:, 1], b[:, 1]) < -20)
+            | (np.minimum(a[:, 1], b[:, 1]) > h + 20)
+        )
+        widths = np.asarray(line.widths_px, dtype=float)
+        thick = np.maximum(1, np.rint(widths)).astype(int)
+        fade = np.round(np.minimum(widths, 1.0), 1)
+        ip = np.round(np.clip(pts, -lim, lim) * scale).astype(np.int32)
+        i = 0
+        n = len(widths)
+        while i < n:
+            if not inside[i]:
+                i += 1
+                continue
+            j = i + 1
+            while j < n and inside[j] and thick[j] == thick[i] and fade[j] == fade[i]:
+                j += 1
+            if mask_mode:
+                color: tuple[float, ...] = (255.0 * fade[i],)
+            else:
+                color = tuple(hz + fade[i] * (c - hz) for c, hz in zip(line.bgr, haze, strict=True))
+            cv2.polylines(image, [ip[i : j + 1]], False, color, int(thick[i]), cv2.LINE_AA, shift)
+            i = j
+
+
+def _bbox(polygons: list[np.ndarray], margin: int, w: int, h: int) -> tuple[int, int, int, int]:
+    """Integer (x0, y0, x1, y1) around ``polygons`` plus ``margin``, clipped to the frame."""
+    allp = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 2) for p in polygons])
+    x0 = max(int(math.floor(allp[:, 0].min())) - margin, 0)
+    y0 = max(int(math.floor(allp[:, 1].min())) - margin, 0)
+    x1 = min(int(math.ceil(allp[:, 0].max())) + margin + 1, w)
+    y1 = min(int(math.ceil(allp[:, 1].max())) + margin + 1, h)
+    return x0, y0, x1, y1
+
+
+def _render_sign(frame: np.ndarray, sign: ProjectedSign, options: RenderOptions) -> None:
+    """Composite one sign (and its occluders) over ``frame`` inside its bounding box.
+
+    The face is rendered as premultiplied (alpha, alpha * intensity) so that
+    blurring it with its own motion kernel and compositing over the already
+    rendered background is exact at the disc's edge.
+    """
+    h, w = frame.shape[:2]
+    kernel = line_kernel(sign.motion_px) if options.blur else None
+    margin = 2 + (kernel.shape[0] // 2 if kernel is not None else 0)
+    polys = [sign.disc_px] + [p for p, _ in sign.occluders_px]
+    x0, y0, x1, y1 = _bbox(polys, margin, w, h)
+    if x1 <= x0 or y1 <= y0:
+        return
+    off = np.array([x0, y0], float)
+    ss = options.supersample
+    alpha = np.zeros((y1 - y0, x1 - x0), np.float32)
+    premult = np.zeros_like(alpha)
+    disc = sign.disc_px - off
+    fill_polygon_aa(alpha, disc, 1.0, ss)
+    fill_polygon_aa(premult, disc, SIGN_BLACK, ss)
+    for part in sign.white_px:
+        fill_polygon_aa(premult, part - off, SIGN_WHITE, ss)
+    for poly, value, opacity in sign.dirt_px:
+        stain = np.zeros_like(alpha)
+        fill_polygon_aa(stain, poly - off, 1.0, ss)
+        a = stain * alpha * float(opacity)
+        premult += a * (float(value) - premult)
+    for poly, value in sign.occluders_px:
+        fill_polygon_aa(alpha, poly - off, 1.0, ss)
+        fill_polygon_aa(premult, poly - off, float(value), ss)
+    if kernel is not None:
+        alpha = cv2.filter2D(alpha, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+        premult = cv2.filter2D(premult, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+    roi = frame[y0:y1, x0:x1].astype(np.float32)
+    out = roi * (1.0 - alpha)[..., None] + premult[..., None]
+    frame[y0:y1, x0:x1] = np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def compose_frame(
+    backdrop: Backdrop | None,
+    K: np.ndarray,
+    world_T_cam: np.ndarray,
+    signs: list[ProjectedSign],
+    rng: np.random.Generator,
+    *,
+    lines_behind: list[ProjectedLine] = (),
+    lines_front: list[ProjectedLine] = (),
+    background_motion_px: np.ndarray | None = None,
+    gain: float = 1.0,
+    offset: float = 0.0,
+    options: RenderOptions = RenderOptions(),
+    size: tuple[int, int] | None = None,
+) -> np.ndarray:
+    """Render one frame.
+
+    Args:
+        backdrop: the flight's static layers (required when ``options.background``).
+        K: (3, 3) camera intrinsics [px], used for the sky and ground only.
+        world_T_cam: (4, 4) camera pose, world z up, camera axes x right, y down, z forward.
+        signs: the visible signs, projected by the caller (drawn in list order).
+        rng: source of the per-frame randomness (noise crop).
+        lines_behind: lattice members and conductors behind the signs.
+        lines_front: conductors in front of the signs.
+        background_motion_px: (2,) image motion during the exposure used to blur
+            the background and the front lines [px].
+        gain, offset: global lighting, ``out = gain * in + offset`` [DN].
+        options: rendering switches.
+        size: (width, height) [px]; defaults to the backdrop's.
+
+    Returns:
+        (H, W, 3) uint8 BGR image.
+    """
+    if size is None:
+        if backdrop is None:
+            raise ValueError("compose_frame needs a backdrop or a size")
+        size = (backdrop.width, backdrop.height)
+    w, h = size
+    bg_kernel = (
+        line_kernel(background_motion_px)
+        if options.blur and background_motion_px is not None
+        else None
+    )
+    if options.background and backdrop is not None:
+        frame = backdrop.sky_and_ground(K, world_T_cam)
+        _draw_lines(frame, list(lines_behind))
+        if bg_kernel is not None:
+            frame = cv2.filter2D(frame, -1, bg_kernel, borderType=cv2.BORDER_REFLECT)
+    else:
+        frame = np.full((h, w, 3), 128, np.uint8)
+    for sign in signs:
+        _render_sign(frame, sign, options)
+    if options.background and lines_front:
+        mask = np.zeros((h, w), np.uint8)
+        _draw_lines(mask, list(lines_front), mask_mode=True)
+        if bg_kernel is not None:
+            mask = cv2.filter2D(mask, -1, bg_kernel, borderType=cv2.BORDER_CONSTANT)
+        # Thin lines cover few pixels: composite only those.
+        idx = np.nonzero(mask)
+        if len(idx[0]):
+            a = mask[idx].astype(np.float32)[:, None] * (1.0 / 255.0)
+            px = frame[idx].astype(np.float32)
+            color = np.asarray(lines_front[0].bgr, np.float32)
+            frame[idx] = np.clip(np.rint(px + a * (color - px)), 0, 255).astype(np.uint8)
+    if not options.lighting:
+        gain, offset = 1.0, 0.0
+    sigma = float(options.noise_sigma)
+    if sigma > 0 and backdrop is not None:
+        pad = Backdrop.NOISE_PAD
+        dy, dx = (int(v) for v in rng.integers(0, pad, 2))
+        noise = backdrop.noise_u8[dy : dy + h, dx : dx + w]
+        beta = sigma / 16.0
+        frame = cv2.addWeighted(frame, gain, noise, beta, offset - 128.0 * beta)
+    elif gain != 1.0 or offset != 0.0:
+        frame = cv2.convertScaleAbs(frame, alpha=gain, beta=offset)
+    if options.jpeg_quality is not None:
+        ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, int(options.jpeg_quality)])
+        if ok:
+            frame = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return frame
