@@ -66,7 +66,7 @@ from signpose.errors import InputError, OutputError
 from signpose.fileio import atomic_path, atomic_write, ensure_dir
 from signpose.trajectories import TRAJECTORIES, make_trajectory
 
-FORMATS = ("mp4", "png")
+FORMATS = ("mp4", "png", "mcap")
 LATTICE_BGR = (105.0, 110.0, 112.0)
 CONDUCTOR_BGR = (38.0, 40.0, 44.0)
 
@@ -88,7 +88,8 @@ class SimSettings:
         hfov_deg: horizontal field of view [deg].
         distortion_k1: plumb_bob k1 of the simulated lens (0 = ideal pinhole).
         distance_m: nominal distance from the signs [m].
-        format: ``"mp4"`` (video.mp4, mp4v) or ``"png"`` (frames/NNNNNN.png).
+        format: ``"mp4"`` (video.mp4, mp4v), ``"png"`` (frames/NNNNNN.png) or ``"mcap"``
+            (flight.mcap: images, ground truth and camera; ``signpose.mcap_io``).
         dirt: stains on some sign faces.
         occlusion: opaque bars in front of some sign faces.
         blur: motion blur from the real motion during the exposure.
@@ -837,12 +838,30 @@ class PngWriter(_WriterBase):
         shutil.rmtree(self._tmp, ignore_errors=True)
 
 
-def make_frame_writer(fmt: str, out_dir: Path, fps: float, size: tuple[int, int]) -> _WriterBase:
-    """The frame writer for ``fmt`` ("mp4" or "png") in ``out_dir``."""
+def make_frame_writer(
+    fmt: str,
+    out_dir: Path,
+    fps: float,
+    size: tuple[int, int],
+    camera: CameraModel | None = None,
+    world_frame: str = "world",
+    world_T_cams: np.ndarray | None = None,
+) -> _WriterBase:
+    """The frame writer for ``fmt`` ("mp4", "png" or "mcap") in ``out_dir``.
+
+    ``camera``, ``world_frame`` and ``world_T_cams`` (N, 4, 4) are for "mcap",
+    which also logs the camera and the ground truth.
+    """
     if fmt == "mp4":
         return Mp4Writer(out_dir / "video.mp4", fps, size)
     if fmt == "png":
         return PngWriter(out_dir / "frames")
+    if fmt == "mcap":
+        from signpose.mcap_io import McapFrameWriter
+
+        if camera is None:
+            raise ValueError("the mcap frame writer needs the camera")
+        return McapFrameWriter(out_dir / "flight.mcap", camera, world_frame, world_T_cams)
     raise InputError(f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
 
 
@@ -917,7 +936,13 @@ def simulate(
     half_exposure = 0.5 * settings.exposure_fraction / settings.fps
     lines: list[str] = []
     with make_frame_writer(
-        settings.format, out, settings.fps, (camera.width, camera.height)
+        settings.format,
+        out,
+        settings.fps,
+        (camera.width, camera.height),
+        camera,
+        sign_map.frame,
+        poses,
     ) as writer:
         for i in tqdm(range(len(traj)), desc="simulate", unit="frame", disable=not progress):
             t = float(stamps[i])
