@@ -88,7 +88,7 @@ class FrameSource:
     def _problem(self, text: str) -> None:
         line = f"{self.path}: {text}"
         self.problems.append(line)
-        log.warning("%s", line)
+        log.info("%s", line)  # the caller reports problems to the user
 
 
 # --------------------------------------------------------------------------- video

@@ -1,0 +1,341 @@
+"""Many flights at once: one ``pipeline.run`` per flight, in parallel, with a summary CSV.
+
+Each flight gets ``OUT/<flight>/``; a flight is finished when its
+``.done.json`` marker exists (written last, atomically), so a rerun skips
+it. A failing flight is recorded in the summary and the others go on.
+Flights run in a local process pool, or on a Dask distributed cluster
+(``scheduler="tcp://host:port"``, optional extra ``signpose[dask]``).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+import os
+import time
+import traceback
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+
+from signpose.errors import InputError, SignposeError
+from signpose.fileio import atomic_write, ensure_dir
+
+log = logging.getLogger(__name__)
+
+DONE_MARKER = ".done.json"
+SUMMARY_NAME = "summary.csv"
+STATUS_OK = "ok"
+STATUS_PARTIAL = "partial"  # input truncated/corrupt: the readable part was processed
+STATUS_FAILED = "failed"
+_METHOD_ORDER = ("baseline", "pnp", "smoothed", "causal")
+
+
+@dataclass(frozen=True)
+class FlightJob:
+    """One flight to run (plain data, so it pickles to worker processes).
+
+    Attributes:
+        flight: the flight's name (its sub-folder).
+        input_path: video, image folder or MCAP log.
+        map_path: the sign map.
+        out_dir: the flight's output folder.
+        camera_path: the camera file, or "" (camera.yaml beside the input, else the log's).
+        gt_path: ground truth TUM, or "" (groundtruth.tum beside the input when present).
+        topic: MCAP image topic, or "".
+        fps: frame rate for an image folder without times, or 0.
+        with_images: put images into result.mcap.
+    """
+
+    flight: str
+    input_path: str
+    map_path: str
+    out_dir: str
+    camera_path: str = ""
+    gt_path: str = ""
+    topic: str = ""
+    fps: float = 0.0
+    with_images: bool = False
+
+
+@dataclass(frozen=True)
+class FlightOutcome:
+    """How one flight went.
+
+    Attributes:
+        flight: the flight's name.
+        status: "ok", "partial" (input cut short) or "failed".
+        frames: frames processed.
+        coverage: method -> fraction of frames with a pose.
+        position_rmse_m: method -> RMS position error vs ground truth [m].
+        time_s: wall time of the flight [s].
+        message: why it failed / where the input stopped, else "".
+        skipped: True when a previous run had finished it.
+    """
+
+    flight: str
+    status: str
+    frames: int = 0
+    coverage: dict[str, float] = field(default_factory=dict)
+    position_rmse_m: dict[str, float] = field(default_factory=dict)
+    time_s: float = 0.0
+    message: str = ""
+    skipped: bool = False
+
+
+def flight_names(inputs: Iterable[str | os.PathLike]) -> list[str]:
+    """Unique, readable sub-folder names for the inputs (stem; parent_stem on clashes)."""
+    paths = [Path(p) for p in inputs]
+    names = [p.stem if p.suffix else p.name for p in paths]
+    clash = {n for n in names if names.count(n) > 1}
+    names = [
+        f"{p.parent.name}_{n}" if n in clash and p.parent.name else n
+        for p, n in zip(paths, names, strict=True)
+    ]
+    out, seen = [], {}
+    for n in names:
+        k = seen.get(n, 0)
+        seen[n] = k + 1
+        out.append(n if k == 0 else f"{n}_{k + 1}")
+    return out
+
+
+def _beside(input_path: Path, name: str) -> str:
+    base = input_path if input_path.is_dir() else input_path.parent
+    for candidate in (base / name, base.parent / name if input_path.is_dir() else None):
+        if candidate is not None and candidate.is_file():
+            return str(candidate)
+    return ""
+
+
+def run_flight(job: FlightJob) -> FlightOutcome:
+    """Run one flight; never raises (failures are outcomes). Writes the done marker last."""
+    from estimator.camera import load_camera
+    from maps.loader import load_map
+    from signpose.pipeline import RunSettings, run
+
+    t0 = time.perf_counter()
+    try:
+        out = ensure_dir(job.out_dir)
+        inp = Path(job.input_path)
+        sign_map = load_map(job.map_path)
+        camera_path = job.camera_path or _beside(inp, "camera.yaml")
+        camera = load_camera(camera_path) if camera_path else None
+        gt_path = job.gt_path or _beside(inp, "groundtruth.tum")
+        result = run(
+            inp,
+            sign_map,
+            out,
+            camera=camera,
+            gt_path=gt_path or None,
+            topic=job.topic or None,
+            fps=job.fps or None,
+            settings=RunSettings(with_images=job.with_images),
+            progress=False,
+        )
+        outcome = FlightOutcome(
+            job.flight,
+            STATUS_PARTIAL if result.problems else STATUS_OK,
+            result.n_frames,
+            result.coverage,
+            result.position_rmse_m,
+            time.perf_counter() - t0,
+            "; ".join(result.problems),
+        )
+    except SignposeError as exc:
+        return FlightOutcome(
+            job.flight, STATUS_FAILED, time_s=time.perf_counter() - t0, message=str(exc)
+        )
+    except Exception as exc:  # noqa: BLE001 - one flight's bug must not stop the batch
+        log.debug("flight %s failed:\n%s", job.flight, traceback.format_exc())
+        return FlightOutcome(
+            job.flight,
+            STATUS_FAILED,
+            time_s=time.perf_counter() - t0,
+            message=f"internal error: {type(exc).__name__}: {exc}",
+        )
+    with atomic_write(Path(job.out_dir) / DONE_MARKER) as f:
+        json.dump(_clean(asdict(outcome)), f, indent=2)
+    return outcome
+
+
+def _clean(value):
+    """JSON-safe copy: NaN/inf -> None."""
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def read_done(out_dir: Path) -> FlightOutcome | None:
+    """The outcome recorded by a finished earlier run, or None."""
+    marker = out_dir / DONE_MARKER
+    if not marker.is_file():
+        return None
+    try:
+        d = json.loads(marker.read_text(encoding="utf-8"))
+        d = {k: v for k, v in d.items() if k in FlightOutcome.__dataclass_fields__}
+        d["skipped"] = True
+        return FlightOutcome(**d)
+    except (OSError, ValueError, TypeError):
+        return None  # unreadable marker: run the flight again
+
+
+def write_summary(path: Path, outcomes: list[FlightOutcome]) -> None:
+    """summary.csv (atomically): flight, status, frames, coverage and error per method, time."""
+    methods = sorted(
+        {m for o in outcomes for m in (*o.coverage, *o.position_rmse_m)},
+        key=lambda m: (_METHOD_ORDER.index(m) if m in _METHOD_ORDER else 99, m),
+    )
+    header = ["flight", "status", "frames"]
+    header += [f"coverage_{m}" for m in methods]
+    header += [f"position_rmse_m_{m}" for m in methods]
+    header += ["time_s", "skipped", "message"]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+
+    def fmt(x, digits):
+        return (
+            ""
+            if x is None or (isinstance(x, float) and not math.isfinite(x))
+            else f"{x:.{digits}f}"
+        )
+
+    for o in outcomes:
+        row = [o.flight, o.status, o.frames]
+        row += [fmt(o.coverage.get(m), 4) for m in methods]
+        row += [fmt(o.position_rmse_m.get(m), 4) for m in methods]
+        row += [fmt(o.time_s, 2), "yes" if o.skipped else "", o.message]
+        w.writerow(row)
+    with atomic_write(path) as f:
+        f.write(buf.getvalue())
+
+
+def _dask_client(scheduler: str):
+    try:
+        from dask.distributed import Client
+    except ImportError:
+        raise InputError(
+            f"--scheduler {scheduler} needs Dask; install it with: pip install signpose[dask]"
+        ) from None
+    try:
+        return Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise InputError(
+            f"--scheduler {scheduler}: cannot connect to the Dask scheduler ({exc})"
+        ) from None
+
+
+def run_batch(
+    inputs: list[str | os.PathLike],
+    map_path: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    camera_path: str | os.PathLike | None = None,
+    topic: str | None = None,
+    fps: float | None = None,
+    with_images: bool = False,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    progress: bool = True,
+    runner: Callable[[FlightJob], FlightOutcome] = run_flight,
+) -> list[FlightOutcome]:
+    """Run every flight not finished yet and write ``summary.csv``.
+
+    Args:
+        inputs: the flights (videos, image folders, MCAP logs).
+        map_path: the sign map shared by all flights.
+        out_dir: output folder; one sub-folder per flight.
+        camera_path: camera for all flights; None: ``camera.yaml`` beside each
+            input, else the log's calibration.
+        topic, fps, with_images: as for ``signpose run``.
+        jobs: parallel worker processes (local pool).
+        scheduler: ``tcp://host:port`` of a Dask scheduler instead of the local pool.
+        progress: one tqdm bar over flights.
+        runner: the per-flight function (picklable; tests swap it).
+
+    Returns:
+        One outcome per input, in input order.
+    """
+    if not inputs:
+        raise InputError("no flights given")
+    from maps.loader import load_map
+
+    load_map(map_path)  # fail once, early, on a bad map
+    out = ensure_dir(out_dir)
+    names = flight_names(inputs)
+    outcomes: dict[str, FlightOutcome] = {}
+    todo: list[FlightJob] = []
+    for name, inp in zip(names, inputs, strict=True):
+        done = read_done(out / name)
+        if done is not None:
+            outcomes[name] = done
+            continue
+        todo.append(
+            FlightJob(
+                name,
+                str(Path(inp).resolve()),
+                str(Path(map_path).resolve()),
+                str((out / name).resolve()),
+                str(Path(camera_path).resolve()) if camera_path else "",
+                "",
+                topic or "",
+                float(fps or 0.0),
+                with_images,
+            )
+        )
+    bar = tqdm(
+        total=len(inputs),
+        initial=len(outcomes),
+        desc="flights",
+        unit="flight",
+        disable=not progress,
+    )
+    try:
+        if todo and scheduler:
+            client = _dask_client(scheduler)
+            try:
+                from dask.distributed import as_completed as dask_completed
+
+                futures = {client.submit(runner, job, pure=False): job for job in todo}
+                for fut in dask_completed(futures):
+                    job = futures[fut]
+                    outcomes[job.flight] = _outcome_of(fut, job)
+                    bar.update(1)
+            finally:
+                client.close()
+        elif todo and jobs <= 1:
+            for job in todo:
+                outcomes[job.flight] = runner(job)
+                bar.update(1)
+        elif todo:
+            with ProcessPoolExecutor(max_workers=jobs) as pool:
+                futures = {pool.submit(runner, job): job for job in todo}
+                for fut in as_completed(futures):
+                    job = futures[fut]
+                    outcomes[job.flight] = _outcome_of(fut, job)
+                    bar.update(1)
+    finally:
+        bar.close()
+        ordered = [outcomes[n] for n in names if n in outcomes]
+        write_summary(out / SUMMARY_NAME, ordered)
+    return ordered
+
+
+def _outcome_of(fut, job: FlightJob) -> FlightOutcome:
+    try:
+        return fut.result()
+    except Exception as exc:  # noqa: BLE001 - a worker died: record it, go on
+        return FlightOutcome(
+            job.flight, STATUS_FAILED, message=f"worker failed: {type(exc).__name__}: {exc}"
+        )

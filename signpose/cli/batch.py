@@ -1,0 +1,67 @@
+"""``signpose batch INPUT... --map MAP --out DIR``: many flights, one summary.csv."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from signpose.cli import add_quiet
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "batch",
+        help="run many flights in parallel (locally or on a Dask cluster)",
+        description="Run every flight like `signpose run`, each into DIR/<flight>/, and write "
+        "DIR/summary.csv. A failed flight is recorded and the rest go on; a rerun skips "
+        "finished flights. The camera defaults to camera.yaml beside each input (else the "
+        "log's calibration) and groundtruth.tum beside an input is compared with.",
+    )
+    p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT", help="flights")
+    p.add_argument("--map", type=Path, required=True, help="sign map YAML")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--camera", type=Path, help="camera file for every flight")
+    p.add_argument("--topic", help="MCAP image topic")
+    p.add_argument("--fps", type=float, help="frame rate of image folders without frames.csv")
+    p.add_argument("--with-images", action="store_true", help="put the images into result.mcap")
+    p.add_argument("--jobs", type=int, default=1, help="parallel flights (default 1)")
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run on this Dask distributed scheduler (pip install signpose[dask])",
+    )
+    add_quiet(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from signpose.batch import STATUS_FAILED, SUMMARY_NAME, run_batch
+    from signpose.errors import InputError
+
+    if args.jobs < 1:
+        raise InputError(f"--jobs must be >= 1, got {args.jobs}")
+    outcomes = run_batch(
+        args.inputs,
+        args.map,
+        args.out,
+        camera_path=args.camera,
+        topic=args.topic,
+        fps=args.fps,
+        with_images=args.with_images,
+        jobs=args.jobs,
+        scheduler=args.scheduler,
+        progress=not args.quiet,
+    )
+    failed = [o for o in outcomes if o.status == STATUS_FAILED]
+    skipped = sum(o.skipped for o in outcomes)
+    print(
+        f"{len(outcomes)} flights: {len(outcomes) - len(failed)} done "
+        f"({skipped} from an earlier run), {len(failed)} failed; "
+        f"summary in {Path(args.out) / SUMMARY_NAME}"
+    )
+    if failed:
+        names = ", ".join(f"{o.flight} ({o.message})" for o in failed)
+        print(f"signpose batch: error: failed flights: {names}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,89 @@
+"""``signpose run INPUT --map MAP --out DIR``: observe + estimate + plots + MCAP (+ compare)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from signpose.cli import add_quiet, codes_arg
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="a flight's trajectories, plots and MCAP from its video/images/log",
+        description="Detect and decode the signs (tracking with the running estimate), "
+        "estimate the trajectories (the paper's per-frame method and the smoother), and write "
+        "observations.jsonl, the estimator's files, PNG plots, result.mcap and report.json "
+        "into DIR. With --gt also compare with the ground truth and print the table.",
+    )
+    p.add_argument("input", type=Path, help="video file, image folder or .mcap log")
+    p.add_argument("--map", type=Path, required=True, help="sign map YAML")
+    p.add_argument("--camera", type=Path, help="camera file (default: the log's calibration)")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--gt", type=Path, help="ground truth TUM: compare and print the table")
+    p.add_argument("--with-images", action="store_true", help="put the images into result.mcap")
+    p.add_argument("--topic", help="MCAP image topic (needed when the log has several)")
+    p.add_argument("--fps", type=float, help="frame rate of an image folder without frames.csv")
+    p.add_argument("--codes", type=codes_arg, help="codes to look for (default: the map's)")
+    p.add_argument("--solver", choices=("batch", "isam2"), default="batch", help="smoother solver")
+    p.add_argument("--no-tracking", action="store_true", help="search every full frame")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    add_quiet(p)
+    p.set_defaults(func=run)
+
+
+def print_result(result, out=sys.stdout) -> None:
+    """The user's summary of a run: table, coverage, timing, files."""
+    if result.comparison_table:
+        print(result.comparison_table, file=out)
+    cov = ", ".join(f"{k} {100 * v:.1f}%" for k, v in result.coverage.items())
+    print(f"{result.n_frames} frames; poses for {cov}", file=out)
+    if result.position_rmse_m:
+        err = ", ".join(f"{k} {v:.3f} m" for k, v in result.position_rmse_m.items())
+        print(f"position RMSE vs ground truth: {err}", file=out)
+    t = result.timing_s
+    stages = ("decode_video", "detect", "decode", "track", "estimate", "outputs")
+    split = ", ".join(f"{k} {1000 * t.get(k, 0.0) / max(result.n_frames, 1):.1f}" for k in stages)
+    print(f"{result.fps:.1f} frames/s; ms per frame: {split}", file=out)
+    print(f"wrote {len(result.files)} files into {result.out_dir}:", file=out)
+    for path in result.files:
+        print(f"  {path}", file=out)
+
+
+def run(args: argparse.Namespace) -> int:
+    from estimator.camera import load_camera
+    from estimator.estimate import EstimatorSettings
+    from maps.loader import load_map
+    from signpose.pipeline import ObserveSettings, RunSettings
+    from signpose.pipeline import run as run_pipeline
+
+    sign_map = load_map(args.map)
+    camera = load_camera(args.camera) if args.camera else None
+    settings = RunSettings(
+        observe=ObserveSettings(codes=args.codes, tracking=not args.no_tracking),
+        estimator=EstimatorSettings(solver=args.solver),
+        with_images=args.with_images,
+        plots=not args.no_plots,
+    )
+    result = run_pipeline(
+        args.input,
+        sign_map,
+        args.out,
+        camera=camera,
+        gt_path=args.gt,
+        topic=args.topic,
+        fps=args.fps,
+        settings=settings,
+        progress=not args.quiet,
+    )
+    print_result(result)
+    if result.problems:
+        print(
+            f"signpose run: error: {'; '.join(result.problems)} "
+            f"(the {result.n_frames} readable frames were processed; outputs in {result.out_dir})",
+            file=sys.stderr,
+        )
+        return 2
+    return 0
