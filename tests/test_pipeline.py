@@ -1,0 +1,215 @@
+"""The pipeline on a tiny simulated flight, with a detector that replays the simulator's truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from frontend.observations import SignObservation, read_observations
+from maps.loader import bundled_map_path, load_map
+from signpose import mcap_io, pipeline
+from signpose.inputs import open_source
+from signpose.plots import PlotData, write_plots
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+class TruthDetector:
+    """Replays ``boxes.jsonl``: frame i's truth keypoints as the i-th call's result.
+
+    ``interrupt_at``: raise KeyboardInterrupt on that call (Ctrl-C in the frame loop).
+    """
+
+    def __init__(self, boxes: list[dict], interrupt_at: int | None = None):
+        self.boxes = boxes
+        self.interrupt_at = interrupt_at
+        self.calls: list[str] = []
+        self.predictions: list[list] = []
+
+    def _next(self, kind: str, codes) -> tuple[SignObservation, ...]:
+        i = len(self.calls)
+        if i == self.interrupt_at:
+            raise KeyboardInterrupt
+        self.calls.append(kind)
+        signs = self.boxes[i]["signs"] if i < len(self.boxes) else []
+        return tuple(
+            SignObservation(
+                s["code"],
+                {k: (float(v[0]), float(v[1])) for k, v in s["keypoints_px"].items()},
+                tuple(s["bbox_px"]),
+            )
+            for s in signs
+            if not s["truncated"] and (codes is None or s["code"] in codes)
+        )
+
+    def detect(self, gray, codes=None, mode="fast"):
+        return self._next("full", codes)
+
+    def detect_tracked(self, gray, predictions, codes=None):
+        self.predictions.append(list(predictions))
+        return self._next("track", codes)
+
+
+def simulate_tiny(out: Path, frames: int = 16, fmt: str = "mp4", **kw):
+    """A small flight (320x240) in front of the bundled pylon."""
+    from signpose.simulate import SimSettings, simulate
+
+    settings = SimSettings(frames=frames, width=320, height=240, format=fmt, **kw)
+    return simulate(load_map(bundled_map_path()), out, settings, progress=False)
+
+
+def truth_detector(sim, **kw) -> TruthDetector:
+    from signpose.simulate import read_boxes
+
+    return TruthDetector(read_boxes(sim.boxes_path), **kw)
+
+
+@pytest.fixture(scope="module")
+def tiny_flight(tmp_path_factory):
+    return simulate_tiny(tmp_path_factory.mktemp("flight"))
+
+
+def test_observe_streams_and_tracks(tiny_flight, tmp_path):
+    sign_map = load_map(bundled_map_path())
+    det = truth_detector(tiny_flight)
+    out = tmp_path / "obs.jsonl"
+    result = pipeline.observe(
+        open_source(tiny_flight.frames_path),
+        sign_map,
+        tiny_flight.camera,
+        progress=False,
+        out_path=out,
+        detector=det,
+    )
+    assert len(result.frames) == 16
+    assert read_observations(out) == list(result.frames)
+    # First frame full, then the running estimate predicts the signs.
+    assert det.calls[0] == "full"
+    assert det.calls[1:].count("track") >= 12
+    assert result.tracked_frames == det.calls.count("track")
+    assert [p.name for p in tmp_path.iterdir()] == ["obs.jsonl"]  # no temp file left
+    assert set(result.timing_s) == {"decode_video", "detect", "decode", "track"}
+
+
+def test_predictions_match_the_truth(tiny_flight):
+    """predict_signs from the true pose lands on the true centres."""
+    from signpose.simulate import read_boxes
+
+    sign_map = load_map(bundled_map_path())
+    boxes = read_boxes(tiny_flight.boxes_path)
+    T = tiny_flight.trajectory.world_T_cam()[5]
+    pred = pipeline.predict_signs(sign_map, tiny_flight.camera, T, sign_map.codes, margin=0.0)
+    truth = {s["code"]: s for s in boxes[5]["signs"] if not s["truncated"]}
+    assert truth and set(truth) <= {code for code, _, _ in pred}
+    for code, (u, v), d in pred:
+        if code in truth:
+            np.testing.assert_allclose((u, v), truth[code]["center_px"], atol=0.05)
+            assert d == pytest.approx(truth[code]["diameter_px"], rel=0.1)
+
+
+def test_ctrl_c_keeps_complete_frames(tiny_flight, tmp_path):
+    sign_map = load_map(bundled_map_path())
+    out = tmp_path / "obs.jsonl"
+    with pytest.raises(KeyboardInterrupt):
+        pipeline.observe(
+            open_source(tiny_flight.frames_path),
+            sign_map,
+            tiny_flight.camera,
+            progress=False,
+            out_path=out,
+            detector=truth_detector(tiny_flight, interrupt_at=5),
+        )
+    frames = read_observations(out)
+    assert [f.frame for f in frames] == [0, 1, 2, 3, 4]
+    assert [p.name for p in tmp_path.iterdir()] == ["obs.jsonl"]
+
+
+def test_run_writes_everything(tiny_flight, tmp_path):
+    sign_map = load_map(bundled_map_path())
+    out = tmp_path / "run"
+    result = pipeline.run(
+        tiny_flight.frames_path,
+        sign_map,
+        out,
+        camera=tiny_flight.camera,
+        gt_path=tiny_flight.groundtruth_path,
+        settings=pipeline.RunSettings(with_images=True),
+        progress=False,
+        detector=truth_detector(tiny_flight),
+    )
+    assert result.n_frames == 16
+    assert result.problems == ()
+    for name in ("observations.jsonl", "result.mcap", "report.json", "trajectory_3d.png"):
+        assert (out / name).is_file(), name
+    for png in ("trajectory_3d.png", "views.png", "signs_per_frame.png", "errors.png"):
+        assert (out / png).read_bytes()[:8] == PNG_MAGIC
+    assert result.coverage["smoothed"] == pytest.approx(1.0)
+    # Truth keypoints: the per-frame PnP is exact up to the simulator's rounding.
+    assert result.position_rmse_m["pnp"] < 0.05
+    report = json.loads((out / "report.json").read_text())
+    assert report["frames"] == 16
+    for stage in ("decode_video", "detect", "decode", "track", "estimate", "outputs", "total"):
+        assert report["timing_s"][stage] >= 0.0
+    log = mcap_io.McapLog(out / "result.mcap")
+    topics = {c.topic: c.message_count for c in log.channels}
+    assert topics[mcap_io.IMAGE_TOPIC] == 16
+    assert topics["/signpose/smoothed/pose"] == 16
+    assert topics[mcap_io.ANNOTATIONS_TOPIC] == 16
+
+
+def test_map_codes_never_seen(tiny_flight, tmp_path):
+    from maps.loader import parse_map
+
+    other = parse_map(
+        {
+            "frame": "elsewhere",
+            "signs": [{"code": "1111", "center_m": [0, 0, 10], "diameter_m": 0.8, "sigma_m": 0.01}],
+        },
+        "other.yaml",
+    )
+    with pytest.raises(pipeline.InputError, match=r"other.yaml: none of the map's codes \(1111\)"):
+        pipeline.run(
+            tiny_flight.frames_path,
+            other,
+            tmp_path / "run",
+            camera=tiny_flight.camera,
+            progress=False,
+            detector=truth_detector(tiny_flight),
+        )
+    # The observations are still there to look at.
+    assert len(read_observations(tmp_path / "run" / "observations.jsonl")) == 16
+
+
+def test_plots_from_fake_data(tmp_path):
+    from estimator.tum import Trajectory
+    from signpose.trajectories import make_trajectory
+
+    rng = np.random.default_rng(0)
+    sign_map = load_map(bundled_map_path())
+    gt = make_trajectory("orbit", sign_map, 40, 10.0)
+    noisy = gt.world_t_cam + rng.normal(0, 0.05, (40, 3))
+    noisy[10:14] = np.nan
+    baseline = Trajectory(gt.stamps_s, noisy, gt.quat_xyzw)
+    data = PlotData(
+        sign_map,
+        {"baseline": baseline, "smoothed": gt},
+        {"smoothed": np.full((40, 3), 0.03)},
+        gt,
+        gt.stamps_s,
+        rng.integers(0, 6, 40),
+    )
+    written = write_plots(tmp_path, data)
+    assert sorted(p.name for p in written) == [
+        "errors.png",
+        "signs_per_frame.png",
+        "trajectory_3d.png",
+        "views.png",
+    ]
+    for p in written:
+        assert p.read_bytes()[:8] == PNG_MAGIC
+    assert not list(tmp_path.glob(".*"))  # no temp files
+    data_no_gt = PlotData(sign_map, {"smoothed": gt})
+    assert len(write_plots(tmp_path / ".." / tmp_path.name, data_no_gt)) == 3
