@@ -134,15 +134,37 @@ class Backdrop:
     def __init__(self, width: int, height: int, seed: int = 0, ground_m_per_px: float = 0.25):
         self.width, self.height = int(width), int(height)
         self.ground_m_per_px = float(ground_m_per_px)
-        rng = np.random.default_rng(seed)
-        self.sky = self._make_sky(rng)
-        self.ground = self._make_ground(rng)
+        self.seed = int(seed)
         self.haze_bgr = np.array([222.0, 214.0, 205.0], np.float32)
-        # Noise bank: N(0, 1) scaled by 16 around 128, cropped at a random offset per frame.
-        z = rng.standard_normal(
-            (self.height + self.NOISE_PAD, self.width + self.NOISE_PAD, 3), dtype=np.float32
-        )
-        self.noise_u8 = np.clip(128.0 + 16.0 * z, 0, 255).astype(np.uint8)
+        self._sky: np.ndarray | None = None
+        self._ground: np.ndarray | None = None
+        self._noise: np.ndarray | None = None
+
+    # Layers are built on first use, each from its own seeded stream, so a
+    # flight that never needs one (clean frames) does not pay for it.
+    @property
+    def sky(self) -> np.ndarray:
+        """(SKY_H, SKY_W, 3) float32 BGR panorama: azimuth across, elevation 90..0 down."""
+        if self._sky is None:
+            self._sky = self._make_sky(np.random.default_rng([self.seed, 1]))
+        return self._sky
+
+    @property
+    def ground(self) -> np.ndarray:
+        """(GROUND_PX, GROUND_PX, 3) float32 BGR ground texture, ``ground_m_per_px`` per texel."""
+        if self._ground is None:
+            self._ground = self._make_ground(np.random.default_rng([self.seed, 2]))
+        return self._ground
+
+    @property
+    def noise_u8(self) -> np.ndarray:
+        """(H + pad, W + pad, 3) uint8 noise bank: 128 + 16 N(0, 1), cropped per frame."""
+        if self._noise is None:
+            z = np.random.default_rng([self.seed, 3]).standard_normal(
+                (self.height + self.NOISE_PAD, self.width + self.NOISE_PAD, 3), dtype=np.float32
+            )
+            self._noise = np.clip(128.0 + 16.0 * z, 0, 255).astype(np.uint8)
+        return self._noise
 
     def _make_sky(self, rng: np.random.Generator) -> np.ndarray:
         h, w = self.SKY_H, self.SKY_W

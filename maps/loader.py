@@ -113,7 +113,7 @@ def _vector(path: str, where: str, field: str, value, *, nonzero: bool) -> np.nd
         raise InputError(f"{path}: {where}: field '{field}' must be a list of 3 numbers")
     try:
         v = np.array([float(x) for x in value])
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(f"{path}: {where}: field '{field}' must hold numbers") from None
     if not np.all(np.isfinite(v)):
         raise InputError(f"{path}: {where}: field '{field}' has a non-finite number")
@@ -128,7 +128,7 @@ def _vector(path: str, where: str, field: str, value, *, nonzero: bool) -> np.nd
 def _positive(path: str, where: str, field: str, value) -> float:
     try:
         x = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(f"{path}: {where}: field '{field}' must be a number") from None
     if not math.isfinite(x) or x <= 0:
         raise InputError(f"{path}: {where}: field '{field}' must be a finite number > 0")

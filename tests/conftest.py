@@ -1,0 +1,80 @@
+"""Shared test builders. Append only (several developers add to this file)."""
+
+# ---------------------------------------------------------------- sign, maps, camera, simulator
+# Builders for tests/test_sign.py, test_maps.py, test_camera.py, test_simulate.py.
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from maps.loader import SignMap, bundled_map_path, load_map
+
+
+@pytest.fixture
+def demo_map() -> SignMap:
+    """The bundled demo pylon map."""
+    return load_map(bundled_map_path())
+
+
+def valid_map_dict() -> dict:
+    """A small valid map as plain data (two oriented signs and one centre-only sign)."""
+    return {
+        "frame": "test_site",
+        "signs": [
+            {
+                "code": "0101",
+                "center_m": [0.0, 0.0, 10.0],
+                "normal": [0.0, 1.0, 0.0],
+                "up": [0.0, 0.0, 1.0],
+                "diameter_m": 0.8,
+                "sigma_m": 0.01,
+            },
+            {
+                "code": "1001",
+                "center_m": [1.5, 0.1, 12.0],
+                "normal": [0.0, 1.0, 0.0],
+                "up": [0.5, 0.0, 0.8660254],
+                "diameter_m": 0.8,
+                "sigma_m": 0.02,
+            },
+            {"code": "0010", "center_m": [-1.0, 0.0, 11.0], "diameter_m": 0.6, "sigma_m": 0.01},
+        ],
+    }
+
+
+def write_yaml(path: Path, data) -> Path:
+    """Write ``data`` as YAML to ``path`` and return the path."""
+    path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def clean_sim_options():
+    """Render options for geometry checks: no background, noise, blur, lighting or JPEG."""
+    from frontend.render import RenderOptions
+
+    return RenderOptions(
+        blur=False, noise_sigma=0.0, jpeg_quality=None, background=False, lighting=False
+    )
+
+
+def white_centroid_px(gray: np.ndarray, center_px, radius_px: float, iterations: int = 3):
+    """Intensity-weighted centroid (u, v) of the bright blob near ``center_px``.
+
+    Weights are the intensity above the local dark level (the 10th percentile
+    of a ring around the window), inside a disc of ``radius_px`` that is
+    re-centred on the estimate each iteration.
+    """
+    img = np.asarray(gray, dtype=float)
+    c = np.asarray(center_px, dtype=float)
+    for _ in range(iterations):
+        r_out = int(np.ceil(radius_px)) + 3
+        x0, y0 = int(round(c[0])) - r_out, int(round(c[1])) - r_out
+        patch = img[y0 : y0 + 2 * r_out + 1, x0 : x0 + 2 * r_out + 1]
+        yy, xx = np.mgrid[y0 : y0 + patch.shape[0], x0 : x0 + patch.shape[1]]
+        d = np.hypot(xx - c[0], yy - c[1])
+        dark = np.percentile(patch[d <= radius_px], 10)
+        w = np.clip(patch - dark, 0, None) * (d <= radius_px)
+        c = np.array([(w * xx).sum() / w.sum(), (w * yy).sum() / w.sum()])
+    return c
