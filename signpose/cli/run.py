@@ -34,8 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def print_result(result, out=sys.stdout) -> None:
-    """The user's summary of a run: table, coverage, timing, files."""
+def print_result(result, out=None) -> None:
+    """The user's summary of a run: table, coverage, timing, files (to stdout by default)."""
+    out = out if out is not None else sys.stdout
     if result.comparison_table:
         print(result.comparison_table, file=out)
     cov = ", ".join(f"{k} {100 * v:.1f}%" for k, v in result.coverage.items())
