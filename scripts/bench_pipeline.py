@@ -1,0 +1,120 @@
+"""Benchmark ``signpose run`` on a simulated 1080p flight (the paper's Table 5 split).
+
+Simulates a flight in front of the bundled pylon (not timed; reused when the
+work folder already holds one of the same size), then times the whole run:
+video decoding, detection, sign decoding, tracking, estimation and outputs
+(files, plots, result.mcap). Prints frames per second and the time split by
+stage; ``--json`` writes the same numbers.
+
+    .venv/bin/python scripts/bench_pipeline.py --frames 1000
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+STAGES = (
+    ("decode_video", "decode video"),
+    ("detect", "detect (cascade + merge)"),
+    ("decode", "decode signs"),
+    ("track", "track (per-frame PnP)"),
+    ("estimate", "estimate (all methods)"),
+    ("outputs", "outputs (files, plots, MCAP)"),
+)
+
+
+def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
+    """The simulated flight in ``work/flight`` (simulated once per size)."""
+    from maps.loader import bundled_map_path, load_map
+    from signpose.simulate import SimSettings, simulate, simulated_camera
+
+    stamp = work / "flight" / "bench.json"
+    settings = SimSettings(frames=frames, width=width, height=height)
+    key = {"frames": frames, "width": width, "height": height}
+    video = work / "flight" / "video.mp4"
+    if stamp.is_file() and video.is_file() and json.loads(stamp.read_text()) == key:
+        return video, work / "flight" / "groundtruth.tum", simulated_camera(settings), 0.0
+    t0 = time.perf_counter()
+    sim = simulate(load_map(bundled_map_path()), work / "flight", settings, progress=not quiet)
+    elapsed = time.perf_counter() - t0
+    stamp.write_text(json.dumps(key))
+    return sim.frames_path, sim.groundtruth_path, sim.camera, elapsed
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    p.add_argument("--frames", type=int, default=1000, help="frames (default 1000)")
+    p.add_argument("--width", type=int, default=1920)
+    p.add_argument("--height", type=int, default=1080)
+    p.add_argument("--work", type=Path, default=Path("bench-out"), help="work folder")
+    p.add_argument("--json", type=Path, help="write the numbers here")
+    p.add_argument("--no-plots", action="store_true", help="time the run without PNG plots")
+    p.add_argument("--no-tracking", action="store_true", help="full-frame detection every frame")
+    p.add_argument("--quiet", action="store_true")
+    args = p.parse_args(argv)
+
+    from maps.loader import bundled_map_path, load_map
+    from signpose.pipeline import ObserveSettings, RunSettings, run
+
+    args.work.mkdir(parents=True, exist_ok=True)
+    video, gt, camera, sim_s = _flight(args.work, args.frames, args.width, args.height, args.quiet)
+    settings = RunSettings(
+        observe=ObserveSettings(tracking=not args.no_tracking), plots=not args.no_plots
+    )
+    t0 = time.perf_counter()
+    result = run(
+        video,
+        load_map(bundled_map_path()),
+        args.work / "run",
+        camera=camera,
+        gt_path=gt,
+        settings=settings,
+        progress=not args.quiet,
+    )
+    wall = time.perf_counter() - t0
+    n = result.n_frames
+    t = result.timing_s
+    print(
+        f"signpose run: {n} frames {args.width}x{args.height}, {wall:.1f} s wall, "
+        f"{n / wall:.1f} frames/s (target >= 15; paper 6.5) on {os.cpu_count()} cores"
+    )
+    print(f"{'stage':32s} {'total [s]':>10s} {'ms/frame':>9s} {'share':>7s}")
+    for key, label in STAGES:
+        v = t.get(key, 0.0)
+        print(f"{label:32s} {v:10.2f} {1000 * v / max(n, 1):9.2f} {100 * v / wall:6.1f}%")
+    print(f"{'total':32s} {wall:10.2f} {1000 * wall / max(n, 1):9.2f} {100.0:6.1f}%")
+    print("coverage: " + ", ".join(f"{k} {100 * v:.1f}%" for k, v in result.coverage.items()))
+    print(
+        "position RMSE: " + ", ".join(f"{k} {v:.3f} m" for k, v in result.position_rmse_m.items())
+    )
+    if sim_s:
+        print(f"(simulation, not timed above: {sim_s:.1f} s)")
+    if args.json:
+        data = {
+            "frames": n,
+            "size": [args.width, args.height],
+            "wall_s": round(wall, 3),
+            "frames_per_second": round(n / wall, 3),
+            "stages_s": {k: round(t.get(k, 0.0), 4) for k, _ in STAGES},
+            "stages_ms_per_frame": {
+                k: round(1000 * t.get(k, 0.0) / max(n, 1), 3) for k, _ in STAGES
+            },
+            "coverage": result.coverage,
+            "position_rmse_m": result.position_rmse_m,
+            "tracking": not args.no_tracking,
+            "plots": not args.no_plots,
+            "cpu_count": os.cpu_count(),
+            "python": platform.python_version(),
+        }
+        args.json.write_text(json.dumps(data, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
