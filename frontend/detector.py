@@ -1,0 +1,537 @@
+"""Sign detection (paper §2.2): Haar cascade windows, the paper's merge, then the decoder.
+
+Modes:
+
+* ``paper``: the paper's procedure. Every window from 24 px up to half the
+  image (``cv2.CascadeClassifier.detectMultiScale`` with ``minNeighbors=0``
+  returns the raw windows), merged as in §2.2 (same-size windows within
+  R = half a window merged when at least T = 2 agree; merged windows of
+  different sizes that overlap enough become one).
+* ``fast``: the same cascade and merge, with less searching. Large windows
+  (>= ``fast_split_px``) are searched on a downscaled frame; small windows
+  only inside regions with enough edges (a sign is all edges; sky is none),
+  found on a coarse tile grid. Signs smaller than the 24 px window are
+  caught by searching those regions once more magnified.
+* tracking (``detect_tracked``): given each sign's predicted centre and
+  diameter (from the previous pose), search only a region around it with the
+  window size restricted to the predicted one; signs not found there are
+  looked for in a full-frame ``fast`` pass (``fell_back``).
+
+Each merged region goes to ``frontend.decoder.decode_region``; regions that
+do not decode are dropped and counted (``n_undecoded``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from frontend.observations import FrameObservations, SignObservation
+from signpose.errors import InputError
+
+WINDOW_PX = 24
+MODES = ("fast", "paper")
+
+
+def bundled_cascade_path() -> Path:
+    """Path of the trained cascade shipped as package data."""
+    return Path(str(resources.files("frontend") / "models" / "signs_cascade.xml"))
+
+
+@dataclass(frozen=True)
+class DetectorSettings:
+    """Detector tuning.
+
+    Attributes:
+        scale_factor: window growth between pyramid levels (paper mode and the
+            full-frame part of fast mode).
+        max_size_frac: largest window as a fraction of the smaller image side
+            (the paper: half the image).
+        merge: "paper" (§2.2) or "group" (``cv2.groupRectangles``).
+        merge_radius_frac: R, as a fraction of the window size (paper: 1/2).
+        merge_min_count: T, windows that must agree (paper: 2).
+        merge_overlap: overlap (intersection over union) above which windows
+            of different sizes are one sign.
+        group_eps: ``cv2.groupRectangles`` eps for merge="group".
+        fast_split_px: fast mode searches windows at least this big on a
+            frame downscaled by ``fast_split_px / 24``.
+        fast_tile_px: tile side of the edge-density gate [px].
+        fast_edge_frac: tiles with fewer edge pixels than this are skipped.
+        fast_small_min_px: smallest sign fast mode looks for (windows below
+            24 px via magnified regions); 0 disables.
+        track_margin: tracking ROI half-side, in predicted diameters, beyond
+            the predicted radius.
+        track_scale: (lo, hi) window size range relative to the predicted
+            diameter.
+        track_min_found_frac: tracking searches the full frame when it finds
+            fewer than this fraction of the predicted signs...
+        track_refresh_frames: ...or when any predicted sign is missing and
+            the last full-frame search is this many tracked frames ago
+            (an occluded sign then does not cost a full search every frame).
+        decode: run the decoder (False: return raw merged regions, for tests).
+    """
+
+    scale_factor: float = 1.1
+    max_size_frac: float = 0.5
+    merge: str = "paper"
+    merge_radius_frac: float = 0.5
+    merge_min_count: int = 2
+    merge_overlap: float = 0.4
+    group_eps: float = 0.2
+    fast_split_px: int = 60
+    fast_tile_px: int = 32
+    fast_edge_frac: float = 0.02
+    fast_small_min_px: int = 16
+    track_margin: float = 0.6
+    track_scale: tuple[float, float] = (0.7, 1.45)
+    track_min_found_frac: float = 0.5
+    track_refresh_frames: int = 10
+    decode: bool = True
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One decoded sign.
+
+    Attributes:
+        code: decoded code "0000".."1111".
+        center_px: (u, v) sign centre in image pixels (the decoder's ``center``).
+        bbox_px: (x, y, w, h) merged detector region [px].
+        keypoints_px: keypoint name -> (u, v) image pixels (from the decoder).
+        score: confidence in [0, 1] (agreeing windows and decoder quality).
+        sigma_px: keypoint standard deviation from the decoder [px].
+    """
+
+    code: str
+    center_px: tuple[float, float]
+    bbox_px: tuple[float, float, float, float]
+    keypoints_px: dict[str, tuple[float, float]]
+    score: float
+    sigma_px: float
+
+
+@dataclass(frozen=True)
+class DetectionResult:
+    """All signs found in one image.
+
+    Attributes:
+        detections: decoded signs, one per code at most (best score kept).
+        n_regions: merged regions the cascade found.
+        n_undecoded: regions dropped because they did not decode.
+        timing: stage name -> milliseconds ("cascade", "merge", "decode", "total").
+        mode: "fast", "paper" or "track".
+        fell_back: tracking lost a predicted sign and searched the full frame.
+        regions: (n_regions, 4) merged regions (x, y, w, h) before decoding.
+    """
+
+    detections: tuple[Detection, ...]
+    n_regions: int
+    n_undecoded: int
+    timing: dict[str, float] = field(default_factory=dict)
+    mode: str = "fast"
+    fell_back: bool = False
+    regions: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+
+
+# --------------------------------------------------------------------------- merge
+
+
+def _components(adjacent: np.ndarray) -> list[np.ndarray]:
+    """Connected components of a symmetric boolean adjacency matrix."""
+    n = adjacent.shape[0]
+    label = -np.ones(n, int)
+    comps = []
+    for i in range(n):
+        if label[i] >= 0:
+            continue
+        stack, members = [i], []
+        label[i] = len(comps)
+        while stack:
+            j = stack.pop()
+            members.append(j)
+            for k in np.flatnonzero(adjacent[j] & (label < 0)):
+                label[k] = len(comps)
+                stack.append(k)
+        comps.append(np.array(members))
+    return comps
+
+
+def paper_merge(
+    rects: np.ndarray,
+    radius_frac: float = 0.5,
+    min_count: int = 2,
+    overlap: float = 0.4,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's §2.2 merge of raw detector windows.
+
+    Same-size windows whose centres lie within R = ``radius_frac`` x size of
+    each other (chained) form a group; a group of at least T = ``min_count``
+    windows becomes one window at their mean position, smaller groups are
+    dropped. Then groups of different sizes whose overlap (intersection over
+    union) exceeds ``overlap`` are one sign: their average position and size
+    (weighted by their window counts) is the result.
+
+    Args:
+        rects: (N, 4) raw windows (x, y, w, h) [px].
+
+    Returns:
+        ((M, 4) merged windows as float (x, y, w, h), (M,) window counts).
+    """
+    rects = np.asarray(rects, float).reshape(-1, 4)
+    if rects.shape[0] == 0:
+        return np.zeros((0, 4)), np.zeros(0, int)
+    merged, counts = [], []
+    for size in np.unique(rects[:, 2]):
+        r = rects[rects[:, 2] == size]
+        c = r[:, :2] + r[:, 2:] / 2
+        d2 = ((c[:, None, :] - c[None, :, :]) ** 2).sum(-1)
+        for comp in _components(d2 <= (radius_frac * size) ** 2):
+            if comp.size >= min_count:
+                merged.append(r[comp].mean(axis=0))
+                counts.append(comp.size)
+    if not merged:
+        return np.zeros((0, 4)), np.zeros(0, int)
+    m = np.array(merged)
+    n = np.array(counts)
+    # Different sizes: greedily, strongest group first, join a group to the first
+    # kept sign it overlaps by more than ``overlap`` (intersection over union);
+    # a sign's box is the count-weighted average of its groups.
+    out: list[np.ndarray] = []
+    out_n: list[int] = []
+    for i in np.argsort(-n, kind="stable"):
+        for k, box in enumerate(out):
+            if _iou(box, m[i]) > overlap:
+                total = out_n[k] + n[i]
+                out[k] = (box * out_n[k] + m[i] * n[i]) / total
+                out_n[k] = int(total)
+                break
+        else:
+            out.append(m[i].copy())
+            out_n.append(int(n[i]))
+    return np.array(out), np.array(out_n)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    iw = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
+    ih = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
+    if iw <= 0 or ih <= 0:
+        return 0.0
+    inter = iw * ih
+    return float(inter / (a[2] * a[3] + b[2] * b[3] - inter))
+
+
+def group_merge(
+    rects: np.ndarray, min_count: int = 2, eps: float = 0.2
+) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's ``groupRectangles`` (clusters of >= ``min_count`` windows) for comparison."""
+    rects = np.asarray(rects).reshape(-1, 4)
+    if rects.shape[0] == 0:
+        return np.zeros((0, 4)), np.zeros(0, int)
+    out, weights = cv2.groupRectangles(rects.astype(int).tolist(), min_count - 1, eps)
+    if len(out) == 0:
+        return np.zeros((0, 4)), np.zeros(0, int)
+    return np.asarray(out, float), np.asarray(weights, int).ravel()
+
+
+# --------------------------------------------------------------------------- detector
+
+
+def _as_gray(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.dtype != np.uint8:
+        img = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    return img
+
+
+def _box_runs(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Bounding boxes (x, y, w, h) of the 8-connected components of a boolean mask."""
+    n, _, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    return [tuple(int(v) for v in stats[i, :4]) for i in range(1, n)]
+
+
+class SignDetector:
+    """The trained cascade plus the paper's merge and the decoder.
+
+    Args:
+        cascade_path: OpenCV cascade XML; None = the bundled model.
+        settings: tuning.
+    """
+
+    def __init__(
+        self, cascade_path: str | Path | None = None, settings: DetectorSettings | None = None
+    ) -> None:
+        path = Path(cascade_path) if cascade_path is not None else bundled_cascade_path()
+        if not path.is_file():
+            raise InputError(f"{path}: cascade file not found")
+        self.cascade_path = path
+        self.settings = settings or DetectorSettings()
+        self._cascade = cv2.CascadeClassifier(str(path))
+        self._since_full = 0  # tracked frames since the last full-frame search
+        if self._cascade.empty():
+            raise InputError(f"{path}: not an OpenCV cascade classifier XML")
+
+    # -- raw windows -----------------------------------------------------------
+
+    def _raw(
+        self,
+        gray: np.ndarray,
+        min_px: float,
+        max_px: float,
+        scale_factor: float | None = None,
+    ) -> np.ndarray:
+        """(N, 4) raw windows of sizes in [min_px, max_px] (sizes in ``gray`` pixels)."""
+        sf = scale_factor or self.settings.scale_factor
+        lo = max(WINDOW_PX, int(math.floor(min_px)))
+        hi = min(int(math.ceil(max_px)), min(gray.shape[:2]))
+        if hi < lo:
+            return np.zeros((0, 4), int)
+        rects = self._cascade.detectMultiScale(
+            gray, scaleFactor=sf, minNeighbors=0, minSize=(lo, lo), maxSize=(hi, hi)
+        )
+        return np.asarray(rects, int).reshape(-1, 4)
+
+    def _raw_scaled(
+        self, gray: np.ndarray, zoom: float, min_px: float, max_px: float, sf: float | None = None
+    ) -> np.ndarray:
+        """Raw windows of ``gray`` resized by ``zoom``, in ``gray`` pixels (float)."""
+        if abs(zoom - 1.0) < 1e-6:
+            return self._raw(gray, min_px, max_px, sf).astype(float)
+        interp = cv2.INTER_AREA if zoom < 1 else cv2.INTER_LINEAR
+        small = cv2.resize(gray, None, fx=zoom, fy=zoom, interpolation=interp)
+        r = self._raw(small, min_px * zoom, max_px * zoom, sf).astype(float)
+        return r / zoom
+
+    def raw_windows(self, gray: np.ndarray, mode: str = "paper") -> np.ndarray:
+        """(N, 4) raw cascade windows (x, y, w, h) [px] of a whole image."""
+        gray = _as_gray(gray)
+        if mode == "paper":
+            return self._raw(gray, WINDOW_PX, self.settings.max_size_frac * min(gray.shape))
+        if mode != "fast":
+            raise InputError(f"unknown detection mode {mode!r}: use one of {', '.join(MODES)}")
+        return self._fast_raw(gray)
+
+    def _fast_raw(self, gray: np.ndarray) -> np.ndarray:
+        s = self.settings
+        h, w = gray.shape
+        max_px = s.max_size_frac * min(h, w)
+        split = float(s.fast_split_px)
+        zoom = WINDOW_PX / split
+        parts = [self._raw_scaled(gray, zoom, split, max_px)]
+        # Edge-density gate on a coarse tile grid: only busy tiles can hold a sign.
+        t = s.fast_tile_px
+        half = cv2.resize(gray, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        edges = cv2.Canny(half, 40, 100)
+        th, tw = (h // 2) // (t // 2), (w // 2) // (t // 2)
+        dens = (
+            edges[: th * (t // 2), : tw * (t // 2)]
+            .reshape(th, t // 2, tw, t // 2)
+            .mean(axis=(1, 3))
+            / 255.0
+        )
+        busy = dens >= s.fast_edge_frac
+        busy = cv2.dilate(busy.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        pad = int(split)
+        for bx, by, bw, bh in _box_runs(busy):
+            x0, y0 = max(bx * t - pad // 2, 0), max(by * t - pad // 2, 0)
+            x1, y1 = min((bx + bw) * t + pad // 2, w), min((by + bh) * t + pad // 2, h)
+            roi = gray[y0:y1, x0:x1]
+            if min(roi.shape) < WINDOW_PX:
+                continue
+            r = self._raw(roi, WINDOW_PX, split * s.scale_factor).astype(float)
+            if s.fast_small_min_px and s.fast_small_min_px < WINDOW_PX:
+                up = WINDOW_PX / s.fast_small_min_px
+                r2 = self._raw_scaled(roi, up, s.fast_small_min_px, WINDOW_PX * 1.05)
+                r = np.concatenate([r, r2])
+            r[:, :2] += (x0, y0)
+            parts.append(r)
+        return np.concatenate(parts) if parts else np.zeros((0, 4))
+
+    # -- merge + decode ----------------------------------------------------------
+
+    def merge(self, rects: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Merged regions and their window counts (settings.merge)."""
+        s = self.settings
+        if s.merge == "group":
+            return group_merge(np.round(rects), s.merge_min_count, s.group_eps)
+        return paper_merge(rects, s.merge_radius_frac, s.merge_min_count, s.merge_overlap)
+
+    def _finish(
+        self,
+        gray: np.ndarray,
+        raw: np.ndarray,
+        codes: Iterable[str] | None,
+        mode: str,
+        timing: dict[str, float],
+        t0: float,
+        fell_back: bool = False,
+    ) -> DetectionResult:
+        t1 = time.perf_counter()
+        regions, counts = self.merge(raw)
+        t2 = time.perf_counter()
+        timing["merge"] = timing.get("merge", 0.0) + (t2 - t1) * 1e3
+        dets, undecoded = self._decode(gray, regions, counts, codes)
+        t3 = time.perf_counter()
+        timing["decode"] = timing.get("decode", 0.0) + (t3 - t2) * 1e3
+        timing["total"] = (t3 - t0) * 1e3
+        return DetectionResult(
+            tuple(dets), len(regions), undecoded, timing, mode, fell_back, regions
+        )
+
+    def _decode(
+        self,
+        gray: np.ndarray,
+        regions: np.ndarray,
+        counts: np.ndarray,
+        codes: Iterable[str] | None,
+    ) -> tuple[list[Detection], int]:
+        codes = tuple(codes) if codes is not None else None
+        if not self.settings.decode:
+            dets = [
+                Detection(
+                    "",
+                    (float(x + w / 2), float(y + h / 2)),
+                    (float(x), float(y), float(w), float(h)),
+                    {},
+                    float(n / (n + 2.0)),
+                    float("inf"),
+                )
+                for (x, y, w, h), n in zip(regions, counts, strict=True)
+            ]
+            return dets, 0
+        from frontend.decoder import decode_region
+
+        best: dict[str, Detection] = {}
+        undecoded = 0
+        for (x, y, w, h), n in zip(regions, counts, strict=True):
+            res = decode_region(gray, (float(x), float(y), float(w), float(h)), codes)
+            if res.code is None:
+                undecoded += 1
+                continue
+            score = float(n / (n + 2.0)) * (0.5 + 0.5 * float(res.quality))
+            det = Detection(
+                res.code,
+                tuple(float(v) for v in res.keypoints_px["center"]),
+                (float(x), float(y), float(w), float(h)),
+                {k: (float(u), float(v)) for k, (u, v) in res.keypoints_px.items()},
+                score,
+                float(res.sigma_px),
+            )
+            # A code appears once per frame: keep the strongest reading.
+            if res.code not in best or det.score > best[res.code].score:
+                if res.code in best:
+                    undecoded += 0  # a duplicate region of the same sign is not an error
+                best[res.code] = det
+        return list(best.values()), undecoded
+
+    # -- public ------------------------------------------------------------------
+
+    def detect(
+        self, image: np.ndarray, codes: Iterable[str] | None = None, mode: str = "fast"
+    ) -> DetectionResult:
+        """Detect and decode every sign in a whole image.
+
+        Args:
+            image: (H, W) uint8 grey image (BGR is converted).
+            codes: the codes that may appear (the map's); None = all 16.
+            mode: "fast" or "paper" (see the module docstring).
+        """
+        if mode not in MODES:
+            raise InputError(f"unknown detection mode {mode!r}: use one of {', '.join(MODES)}")
+        t0 = time.perf_counter()
+        gray = _as_gray(image)
+        raw = self.raw_windows(gray, mode)
+        timing = {"cascade": (time.perf_counter() - t0) * 1e3}
+        return self._finish(gray, raw, codes, mode, timing, t0)
+
+    def detect_tracked(
+        self,
+        image: np.ndarray,
+        predictions: Sequence[tuple[str, tuple[float, float], float]],
+        codes: Iterable[str] | None = None,
+    ) -> DetectionResult:
+        """Search only around predicted signs; fall back to a full frame when one is lost.
+
+        Args:
+            image: (H, W) uint8 grey image.
+            predictions: (code, (u, v) predicted centre [px], predicted
+                diameter [px]) per sign expected in view.
+            codes: the codes that may appear; None = all 16.
+
+        Returns:
+            The detections; ``mode`` "track", ``fell_back`` True when a
+            predicted sign was not found and the full frame was searched.
+        """
+        t0 = time.perf_counter()
+        gray = _as_gray(image)
+        h, w = gray.shape
+        s = self.settings
+        parts = []
+        for _code, (u, v), diam in predictions:
+            if not (math.isfinite(u) and math.isfinite(v) and diam > 0):
+                continue
+            half = diam * (0.5 + s.track_margin) + 4
+            x0, y0 = int(max(u - half, 0)), int(max(v - half, 0))
+            x1, y1 = int(min(u + half + 1, w)), int(min(v + half + 1, h))
+            if x1 - x0 < 8 or y1 - y0 < 8:
+                continue
+            roi = gray[y0:y1, x0:x1]
+            lo, hi = s.track_scale[0] * diam, s.track_scale[1] * diam
+            zoom = 1.0 if lo >= WINDOW_PX else WINDOW_PX / max(lo, 8.0)
+            r = self._raw_scaled(roi, zoom, lo, hi, sf=1.08)
+            r[:, :2] += (x0, y0)
+            parts.append(r)
+        raw = np.concatenate(parts) if parts else np.zeros((0, 4))
+        timing = {"cascade": (time.perf_counter() - t0) * 1e3}
+        res = self._finish(gray, raw, codes, "track", timing, t0)
+        wanted = {c for c, _, _ in predictions}
+        found = {d.code for d in res.detections} & wanted
+        self._since_full += 1
+        enough = len(found) >= max(1.0, s.track_min_found_frac * len(wanted))
+        if found == wanted or (enough and self._since_full < s.track_refresh_frames):
+            return res
+        self._since_full = 0
+        full = self.detect(gray, codes, "fast")
+        timing = {k: res.timing.get(k, 0.0) + v for k, v in full.timing.items()}
+        timing["total"] = (time.perf_counter() - t0) * 1e3
+        return DetectionResult(
+            full.detections,
+            full.n_regions,
+            full.n_undecoded,
+            timing,
+            "track",
+            True,
+            full.regions,
+        )
+
+
+def to_frame_observations(
+    result: DetectionResult, frame: int, stamp_ns: int, image_size: tuple[int, int]
+) -> FrameObservations:
+    """The estimator's view of one frame's detections.
+
+    Args:
+        image_size: (width, height) [px].
+    """
+    signs = tuple(
+        SignObservation(
+            code=d.code,
+            keypoints_px=dict(d.keypoints_px) or {"center": d.center_px},
+            bbox_px=d.bbox_px,
+            sigma_px=d.sigma_px if math.isfinite(d.sigma_px) and d.sigma_px > 0 else 0.5,
+            score=min(max(d.score, 0.0), 1.0),
+        )
+        for d in result.detections
+        if d.code
+    )
+    return FrameObservations(
+        int(frame), int(stamp_ns), (int(image_size[0]), int(image_size[1])), signs
+    )
