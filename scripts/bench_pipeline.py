@@ -16,6 +16,7 @@ import json
 import os
 import platform
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -52,7 +53,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=1000, help="frames (default 1000)")
     p.add_argument("--width", type=int, default=1920)
     p.add_argument("--height", type=int, default=1080)
-    p.add_argument("--work", type=Path, default=Path("bench-out"), help="work folder")
+    p.add_argument(
+        "--work",
+        type=Path,
+        default=Path(tempfile.gettempdir()) / "signpose-bench",
+        help="work folder (the simulated flight is kept there for reruns)",
+    )
     p.add_argument("--json", type=Path, help="write the numbers here")
     p.add_argument("--no-plots", action="store_true", help="time the run without PNG plots")
     p.add_argument("--no-tracking", action="store_true", help="full-frame detection every frame")
