@@ -1,0 +1,276 @@
+"""Flight simulator: rendered geometry, outputs, determinism, errors, CLI."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from conftest import clean_sim_options, white_centroid_px
+
+from estimator.camera import load_camera, pixel_from_world_point
+from estimator.tum import read_tum
+from frontend.render import line_kernel
+from frontend.sign import LOCATION_SIDE_R
+from maps.loader import load_map
+from signpose.cli import main
+from signpose.errors import InputError, OutputError
+from signpose.simulate import (
+    SimSettings,
+    build_scene,
+    lighting_at,
+    make_frame_writer,
+    pose_at,
+    read_boxes,
+    render_frame,
+    simulate,
+    simulated_camera,
+)
+from signpose.trajectories import make_trajectory
+
+SMALL = SimSettings(frames=4, width=480, height=270, hfov_deg=20.0)
+
+
+def _outputs(result) -> dict[str, bytes]:
+    files = [p for p in result.paths() if p.is_file()]
+    if result.frames_path.is_dir():
+        files += sorted(result.frames_path.iterdir())
+    return {str(p.relative_to(result.out_dir)): p.read_bytes() for p in files}
+
+
+def _window_radius(camera, pose, scene, code) -> float | None:
+    """Radius around the centre holding the whole location square but no other white part."""
+    sign = next(s for s in scene.signs if s.code == code)
+    c, _ = pixel_from_world_point(camera, pose, sign.center_m[None])
+    dists = [
+        np.linalg.norm(pixel_from_world_point(camera, pose, poly)[0] - c, axis=1)
+        for poly in sign.white_m
+    ]
+    inner, outer = dists[0].max(), min(d.min() for d in dists[1:])
+    # Seen obliquely the square's corner can come within a pixel of the directional
+    # rectangle; their anti-aliased edges then mix and the measurement is not clean.
+    return 0.5 * (inner + outer) if outer - inner > 1.5 else None
+
+
+@pytest.mark.parametrize(
+    "trajectory,frames", [("climb-hover-depart", (0, 60, 130)), ("orbit", (5, 150))]
+)
+def test_location_square_centre_matches_projected_map_centre(demo_map, trajectory, frames):
+    """Clean 1080p renders through the distorted lens: white-square centroid vs truth."""
+    settings = SimSettings()  # 1920x1080, 60 deg, k1 = -0.05
+    camera = simulated_camera(settings)
+    assert camera.dist[0] == -0.05
+    scene = build_scene(demo_map, camera, seed=0, background=False)
+    traj = make_trajectory(trajectory, demo_map, n_frames=210, fps=30.0)
+    poses = traj.world_T_cam()
+    checked = 0
+    for i in frames:
+        image, truths = render_frame(
+            scene, poses[i], np.random.default_rng(0), options=clean_sim_options()
+        )
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        assert len(truths) == len(demo_map.signs)
+        for t in truths:
+            sign = demo_map.sign(t.code)
+            px, _ = pixel_from_world_point(camera, poses[i], sign.center_m[None])
+            np.testing.assert_allclose(t.center_px, px[0], atol=1e-9)
+            assert t.diameter_px > 30  # big enough for a clean measurement
+            radius = _window_radius(camera, poses[i], scene, t.code)
+            if radius is None:
+                continue
+            measured = white_centroid_px(gray, t.center_px, radius)
+            err = np.linalg.norm(measured - np.asarray(t.center_px))
+            assert err < 0.5, f"frame {i} sign {t.code}: centre off by {err:.3f} px"
+            checked += 1
+    assert checked >= 10
+
+
+def test_location_square_size_in_image(demo_map):
+    camera = simulated_camera(SimSettings())
+    scene = build_scene(demo_map, camera, background=False)
+    pose = make_trajectory("climb-hover-depart", demo_map, 30, 30.0).world_T_cam()[15]
+    image, truths = render_frame(scene, pose, np.random.default_rng(0), options=clean_sim_options())
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(float)
+    t = truths[0]
+    r = 0.31 * t.diameter_px / 2
+    u, v = np.round(t.center_px).astype(int)
+    patch = gray[v - int(r) : v + int(r) + 1, u - int(r) : u + int(r) + 1]
+    lo, hi = patch.min(), patch.max()
+    area_px = ((patch - lo) / (hi - lo)).sum()
+    expected = (LOCATION_SIDE_R * t.diameter_px / 2) ** 2
+    assert area_px == pytest.approx(expected, rel=0.15)
+
+
+def test_truth_fields_are_consistent(demo_map):
+    scene = build_scene(demo_map, simulated_camera(SimSettings()), background=False)
+    pose = make_trajectory("lawnmower", demo_map, 40, 30.0).world_T_cam()[20]
+    _, truths = render_frame(scene, pose, np.random.default_rng(0), options=clean_sim_options())
+    assert truths
+    for t in truths:
+        x, y, w, h = t.bbox_px
+        assert w > 0 and h > 0
+        assert t.keypoints_px["center"] == pytest.approx(t.center_px)
+        for u, v in t.keypoints_px.values():
+            assert x <= u <= x + w and y <= v <= y + h
+        assert max(w, h) == pytest.approx(t.diameter_px, rel=0.1)
+        assert 20.0 < t.distance_m < 40.0
+
+
+def test_simulate_writes_everything_and_is_deterministic(demo_map, tmp_path):
+    settings = SimSettings(
+        frames=4, width=480, height=270, hfov_deg=20.0, dirt=True, occlusion=True
+    )
+    a = simulate(demo_map, tmp_path / "a", settings, progress=False)
+    b = simulate(demo_map, tmp_path / "b", settings, progress=False)
+    out_a, out_b = _outputs(a), _outputs(b)
+    assert sorted(out_a) == [
+        "boxes.jsonl",
+        "camera.yaml",
+        "groundtruth.tum",
+        "map.yaml",
+        "video.mp4",
+    ]
+    assert out_a == out_b  # same seed, same bytes (mp4v included)
+    assert sorted(p.name for p in a.out_dir.iterdir()) == sorted(out_a)  # no temp files left
+    # The video decodes to the right number and size of frames.
+    cap = cv2.VideoCapture(str(a.frames_path))
+    n = 0
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        assert frame.shape == (270, 480, 3)
+        n += 1
+    cap.release()
+    assert n == 4
+    c = simulate(
+        demo_map, tmp_path / "c", SimSettings(**{**settings.__dict__, "seed": 1}), progress=False
+    )
+    assert _outputs(c)["video.mp4"] != out_a["video.mp4"]
+
+
+def test_simulate_png_outputs_and_ground_truth_files(demo_map, tmp_path):
+    settings = SimSettings(frames=3, width=480, height=270, hfov_deg=20.0, format="png", fps=25.0)
+    res = simulate(demo_map, tmp_path / "png", settings, progress=False)
+    frames = sorted(res.frames_path.iterdir())
+    assert [p.name for p in frames] == ["000000.png", "000001.png", "000002.png"]
+    assert cv2.imread(str(frames[0])).shape == (270, 480, 3)
+    again = simulate(demo_map, tmp_path / "png2", settings, progress=False)
+    assert _outputs(res) == _outputs(again)
+    cam = load_camera(res.camera_path)
+    assert (cam.width, cam.height) == (480, 270) and cam.dist[0] == pytest.approx(-0.05)
+    gt = read_tum(res.groundtruth_path)
+    np.testing.assert_allclose(gt.stamps_s, [0.0, 0.04, 0.08])
+    np.testing.assert_allclose(gt.world_t_cam, res.trajectory.world_t_cam, atol=1e-6)
+    assert load_map(res.map_path).codes == demo_map.codes
+    boxes = read_boxes(res.boxes_path)
+    assert [b["frame"] for b in boxes] == [0, 1, 2]
+    assert [b["stamp_ns"] for b in boxes] == [0, 40_000_000, 80_000_000]
+    for line in boxes:
+        for s in line["signs"]:
+            assert set(s) >= {"code", "bbox_px", "center_px", "diameter_px", "keypoints_px"}
+            assert isinstance(s["occluded"], bool)
+            # The boxes hold the truth of the written camera: re-project the map centre.
+            pose = gt.world_T_cam()[line["frame"]]
+            px, _ = pixel_from_world_point(cam, pose, demo_map.sign(s["code"]).center_m[None])
+            np.testing.assert_allclose(s["center_px"], px[0], atol=1e-3)
+
+
+def test_occlusion_and_dirt_change_the_signs(demo_map):
+    camera = simulated_camera(SMALL)
+    clean = build_scene(demo_map, camera, seed=3, background=False)
+    dirty = build_scene(demo_map, camera, seed=3, dirt=True, occlusion=True, background=False)
+    assert any(s.occluders_m for s in dirty.signs) and any(s.dirt_m for s in dirty.signs)
+    pose = make_trajectory("climb-hover-depart", demo_map, 10, 30.0).world_T_cam()[5]
+    opts = clean_sim_options()
+    img_c, truth_c = render_frame(clean, pose, np.random.default_rng(0), options=opts)
+    img_d, truth_d = render_frame(dirty, pose, np.random.default_rng(0), options=opts)
+    assert not np.array_equal(img_c, img_d)
+    occluded = {t.code for t in truth_d if t.occluded}
+    assert occluded == {s.code for s in dirty.signs if s.occluders_m}
+    assert not any(t.occluded for t in truth_c)
+
+
+def test_full_render_is_deterministic_per_rng_and_textured(demo_map):
+    camera = simulated_camera(SMALL)
+    scene = build_scene(demo_map, camera, seed=0)
+    traj = make_trajectory("orbit", demo_map, 30, 30.0)
+    poses = traj.world_T_cam()
+    exposure = (pose_at(poses, traj.stamps_s, 0.49), pose_at(poses, traj.stamps_s, 0.51))
+    kw = dict(exposure_poses=exposure, gain=1.1, offset=-4.0)
+    a, _ = render_frame(scene, poses[15], np.random.default_rng(5), **kw)
+    b, _ = render_frame(scene, poses[15], np.random.default_rng(5), **kw)
+    c, _ = render_frame(scene, poses[15], np.random.default_rng(6), **kw)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)  # the noise differs
+    # Not a flat background: sky and ground differ, and there is texture.
+    assert a.std() > 20
+    assert np.abs(a[5].astype(float).mean(axis=0) - a[-5].astype(float).mean(axis=0)).max() > 20
+
+
+def test_motion_blur_kernel_is_normalised_and_centred():
+    assert line_kernel(np.array([0.2, 0.1])) is None
+    for motion in ([4.0, 0.0], [3.0, -2.5], [0.0, 7.3]):
+        k = line_kernel(np.array(motion)).astype(float)
+        assert k.sum() == pytest.approx(1.0)
+        ys, xs = np.mgrid[: k.shape[0], : k.shape[1]]
+        c = (k.shape[0] - 1) / 2
+        assert (k * xs).sum() == pytest.approx(c, abs=1e-6)
+        assert (k * ys).sum() == pytest.approx(c, abs=1e-6)
+        # Spread along the motion: second moment ~ L^2 / 12.
+        m = np.asarray(motion)
+        d = ((xs - c) * m[0] + (ys - c) * m[1]) / np.linalg.norm(m)
+        assert (k * d**2).sum() == pytest.approx(np.dot(m, m) / 12, rel=0.3, abs=0.2)
+
+
+def test_pose_interpolation_and_lighting_are_smooth(demo_map):
+    traj = make_trajectory("orbit", demo_map, 20, 10.0)
+    poses = traj.world_T_cam()
+    np.testing.assert_allclose(pose_at(poses, traj.stamps_s, traj.stamps_s[7]), poses[7], atol=1e-9)
+    mid = pose_at(poses, traj.stamps_s, 0.5 * (traj.stamps_s[7] + traj.stamps_s[8]))
+    np.testing.assert_allclose(mid[:3, 3], 0.5 * (poses[7][:3, 3] + poses[8][:3, 3]), atol=1e-9)
+    R = mid[:3, :3]
+    np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-9)
+    gains = [lighting_at(t, 0)[0] for t in np.arange(0, 10, 1 / 30)]
+    assert 0.75 < min(gains) < max(gains) < 1.25
+    assert np.abs(np.diff(gains)).max() < 0.01
+
+
+def test_unwritable_out_dir_raises_output_error(demo_map, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    with pytest.raises(OutputError, match="file"):
+        simulate(demo_map, blocker / "out", SMALL, progress=False)
+
+
+def test_bad_settings_raise_input_error(demo_map, tmp_path):
+    for bad in (
+        SimSettings(frames=0),
+        SimSettings(trajectory="loop"),
+        SimSettings(format="avi"),
+        SimSettings(jpeg_quality=0),
+    ):
+        with pytest.raises(InputError):
+            simulate(demo_map, tmp_path / "x", bad, progress=False)
+
+
+@pytest.mark.parametrize("fmt", ["mp4", "png"])
+def test_frame_writer_leaves_nothing_on_failure(tmp_path, fmt):
+    frame = np.zeros((64, 96, 3), np.uint8)
+    with pytest.raises(RuntimeError), make_frame_writer(fmt, tmp_path, 30.0, (96, 64)) as w:
+        w.write(0, 0, frame)
+        raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_simulate(tmp_path, capsys):
+    out = tmp_path / "sim"
+    args = ["simulate", "--out", str(out), "--frames", "2", "--width", "320", "--height", "180"]
+    assert main(args + ["--format", "png", "--quiet", "--dirt", "--occlusion"]) == 0
+    printed = capsys.readouterr().out
+    for name in ("frames", "camera.yaml", "groundtruth.tum", "boxes.jsonl", "map.yaml"):
+        assert str(out / name) in printed
+    lines = (out / "boxes.jsonl").read_text().splitlines()
+    assert len(lines) == 2 and json.loads(lines[1])["frame"] == 1
+    with pytest.raises(SystemExit) as info:
+        main(args + ["--trajectory", "nowhere"])
+    assert info.value.code == 2
