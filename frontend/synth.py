@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from frontend.homography import Ellipse, apply_homography, disc_ellipse
 from frontend.sign import fill_polygon_aa, sign_keypoints, sign_shape, validate_code
 
 BACKGROUNDS: tuple[str, ...] = ("plain", "sky", "lattice", "lines", "ground", "clutter")
@@ -63,7 +64,7 @@ class SynthCrop:
     image: np.ndarray
     code: str
     keypoints_px: dict[str, tuple[float, float]]
-    ellipse: tuple[tuple[float, float], tuple[float, float], float]
+    ellipse: Ellipse
     diameter_px: float
     crop_H_sign: np.ndarray
     diameter_m: float = 1.0
@@ -97,37 +98,6 @@ def crop_homography(
     )
     h = k @ np.column_stack([cam_R_sign[:, 0], cam_R_sign[:, 1], cam_t_sign])
     return h / h[2, 2]
-
-
-def apply_homography(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Map (N, 2) points through the (3, 3) homography ``h``; returns (N, 2)."""
-    xy = np.asarray(xy, float).reshape(-1, 2)
-    p = xy @ h[:, :2].T + h[:, 2]
-    return p[:, :2] / p[:, 2:3]
-
-
-def ellipse_from_conic(c: np.ndarray) -> tuple[tuple[float, float], tuple[float, float], float]:
-    """Centre, full axes and angle of the ellipse x^T c x = 0 (c: (3, 3) symmetric)."""
-    a = c[:2, :2]
-    b = c[:2, 2]
-    centre = -np.linalg.solve(a, b)
-    k = centre @ a @ centre + 2 * b @ centre + c[2, 2]
-    w, v = np.linalg.eigh(a / -k)
-    # Semi-axes: 1/sqrt(eigenvalue); the smallest eigenvalue is the major axis.
-    major_dir = v[:, 0]
-    axes = (2.0 / math.sqrt(w[0]), 2.0 / math.sqrt(w[1]))
-    angle = math.degrees(math.atan2(major_dir[1], major_dir[0])) % 180.0
-    return (float(centre[0]), float(centre[1])), (float(axes[0]), float(axes[1])), angle
-
-
-def disc_ellipse(
-    crop_H_sign: np.ndarray, diameter_m: float
-) -> tuple[tuple[float, float], tuple[float, float], float]:
-    """Exact image of the disc rim under ``crop_H_sign`` (an ellipse)."""
-    r = diameter_m / 2.0
-    circle = np.diag([1.0, 1.0, -r * r])
-    hinv = np.linalg.inv(crop_H_sign)
-    return ellipse_from_conic(hinv.T @ circle @ hinv)
 
 
 # ---------------------------------------------------------------------------

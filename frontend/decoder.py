@@ -1,0 +1,831 @@
+"""The paper's contour decoder (§1.2, steps 2-7) with sub-pixel keypoints.
+
+One region of interest (a crop around one sign) in, one ``DecodeResult`` out.
+
+Steps, as in the paper, and where this module departs from it:
+
+2. gray: colour crops are converted to one channel.
+3. binarise at the crop's mean gray level.
+4. contours; the sign's extent is the largest dark region that encloses
+   white holes. Instead of the paper's external (axis-aligned) rectangles we
+   keep each contour's moments: under perspective a rectangle's axis-aligned
+   box is neither centred on it nor shaped like it, while the area centroid
+   and second moments transform predictably (the centroid exactly under an
+   affine map) and also give each hole's aspect ratio at any rotation.
+5. location rectangle: the hole closest to the centre of the sign's extent.
+6. directional rectangle: among the other holes, the one with the smallest
+   area and the largest aspect ratio.
+7. read the bits clockwise from the direction centre -> directional
+   rectangle, first bit = most significant. Under an oblique view the angles
+   between holes are distorted, so they are measured after undoing the
+   affine part of the view, estimated from the disc's (or the location
+   square's) second moments, which are isotropic on the sign.
+
+Then, beyond the paper:
+
+* a homography ``image_H_sign`` is fitted to the rectangles' centroids; the
+  centroid of a tilted rectangle is not the image of its centre, so the fit
+  predicts each rectangle's image centroid exactly (projected polygon) and
+  iterates the small correction. Every keypoint is the sign-frame keypoint
+  mapped through this homography (sub-pixel, the same map for all).
+* verification: gray levels sampled through the homography at all five slot
+  positions must show exactly one thin white rectangle (the directional one)
+  and wide white or black coded slots that agree with the contours. A crop
+  that does not pass returns no code and a reason; one wrong code costs far
+  more than one missed frame.
+* the paper's first robustness rule: a code that is not in ``codes`` (the
+  map's codes) is dropped (``code_not_in_map``).
+
+Image coordinates: pixel centres at integers (OpenCV), u right, v down. The
+sign is seen from the front, so "clockwise as the viewer sees the face" is
+clockwise on screen.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from frontend.homography import (
+    Ellipse,
+    disc_ellipse,
+    fit_affine,
+    fit_homography,
+    polygon_centroids,
+)
+from frontend.sign import N_BITS, sign_shape, slot_angle_rad
+
+REASONS: tuple[str, ...] = (
+    "ok",
+    "no_sign",  # nothing sign-like: no dark region with white holes
+    "no_location",  # no hole can be the location rectangle
+    "ambiguous_direction",  # no single thin rectangle among the five slots
+    "inconsistent",  # contours and gray levels disagree about the bits
+    "low_contrast",  # black and white too close to read
+    "cut_by_edge",  # part of the sign lies outside the crop
+    "code_not_in_map",  # decoded, but the map has no sign with this code
+)
+
+# Sign geometry with the disc diameter as unit (the homography's sign plane).
+_SHAPE = sign_shape("1111", 1.0)
+_PART_NAMES: tuple[str, ...] = ("center", "direction", "slot1", "slot2", "slot3", "slot4")
+_PART_QUADS = np.stack([_SHAPE.white_parts[n] for n in _PART_NAMES])  # (6, 4, 2)
+_PART_CENTRES = _PART_QUADS.mean(axis=1)  # (6, 2)
+_SLOT_RADIUS = float(np.hypot(*_PART_CENTRES[1]))  # 0.3 diameters
+_SLOT_ANGLES = np.array([slot_angle_rad(k) for k in range(N_BITS + 1)])
+_LOCATION_SIDE = float(_PART_QUADS[0, 1, 0] - _PART_QUADS[0, 0, 0])
+
+
+def _sample_points() -> np.ndarray:
+    """Sign-plane points sampled for verification (diameter units), in blocks.
+
+    * per slot position k (0..4): a tangential line of 5 points across the
+      slot centre (offsets -0.1..0.1 diameters: wider than the directional
+      rectangle, about as wide as a coded one);
+    * the directional rectangle's length: 2 points along it;
+    * black references between the slots, inside, on and outside the ring;
+    * the location square: its centre and 4 points halfway to its corners.
+    """
+    pts = []
+    for ang in _SLOT_ANGLES:
+        radial = np.array([math.cos(ang), math.sin(ang)])
+        tangential = np.array([math.sin(ang), -math.cos(ang)])
+        for o in _OFFSETS:
+            pts.append(_SLOT_RADIUS * radial + o * tangential)
+    up = np.array([0.0, 1.0])
+    pts += [(_SLOT_RADIUS - 0.07) * up, (_SLOT_RADIUS + 0.07) * up]
+    for ang in _SLOT_ANGLES - math.radians(36.0):
+        radial = np.array([math.cos(ang), math.sin(ang)])
+        pts += [0.41 * radial, 0.3 * radial, 0.19 * radial]
+    h = _LOCATION_SIDE / 4
+    pts += [[0.0, 0.0], [-h, -h], [h, -h], [h, h], [-h, h]]
+    return np.asarray(pts)
+
+
+_OFFSETS = np.array([-0.1, -0.05, 0.0, 0.05, 0.1])
+_N_OFFSETS = len(_OFFSETS)
+_N_SLOT_SAMPLES = (N_BITS + 1) * _N_OFFSETS
+_SAMPLES = _sample_points()
+_S_DIR_LEN = slice(_N_SLOT_SAMPLES, _N_SLOT_SAMPLES + 2)
+_S_BLACK = slice(_N_SLOT_SAMPLES + 2, _N_SLOT_SAMPLES + 2 + 15)
+_S_LOC = slice(_N_SLOT_SAMPLES + 17, _N_SLOT_SAMPLES + 22)
+# Disc rim points that must lie inside the crop for a reading to count.
+_RIM = 0.46 * np.stack(
+    [
+        np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False)),
+        np.sin(np.linspace(0, 2 * np.pi, 24, endpoint=False)),
+    ],
+    axis=1,
+)
+# Expected (centre, mean across) of a slot, as fractions black -> white.
+_PIXEL_COV = np.eye(2) / 12.0
+_UNIT_STEPS = np.array([[0.0, 0.0], [0.01, 0.0], [0.0, 0.01]])
+_ARANGE = np.arange(4096, dtype=np.float32)
+
+
+def _grow_directions() -> np.ndarray:
+    """(6, 4, 2) per-corner offsets that grow each part by one unit on every side."""
+    out = np.zeros_like(_PART_QUADS)
+    for p, quad in enumerate(_PART_QUADS):
+        d = quad - quad.mean(axis=0)
+        ax = (d[1] - d[0]) / np.linalg.norm(d[1] - d[0])
+        ay = (d[3] - d[0]) / np.linalg.norm(d[3] - d[0])
+        # Corner order follows the part's own edges; orient by the corner offsets.
+        for k in range(4):
+            sx = 1.0 if d[k] @ ax > 0 else -1.0
+            sy = 1.0 if d[k] @ ay > 0 else -1.0
+            out[p, k] = sx * ax + sy * ay
+    return out
+
+
+_PART_GROW = _grow_directions()
+
+
+def _project(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(N, 2) sign-plane points through (3, 3) ``h`` to pixels."""
+    return cv2.perspectiveTransform(xy.reshape(-1, 1, 2), h).reshape(-1, 2)
+
+
+_FLIP_COLS = np.array([1.0, -1.0])  # right-multiplies: flips the v column
+_CLASS_BLACK = np.array([0.0, 0.0])
+_CLASS_DIRECTION = np.array([1.0, 0.4])
+_CLASS_CODED = np.array([1.0, 0.85])
+
+
+@dataclass(frozen=True)
+class DecoderSettings:
+    """Decoder tuning.
+
+    Attributes:
+        min_sign_px: smallest disc diameter read [px]; smaller is ``no_sign``.
+        max_regions: dark regions tried, largest first.
+        max_location_candidates: holes tried as location rectangle per region.
+        max_direction_candidates: holes tried as directional rectangle.
+        min_contrast: least white - black gray-level difference.
+        min_bit_margin: least normalised margin of each slot's class decision.
+        min_direction_margin: least cost margin between the best and the
+            second-best rotation of the slot pattern.
+        max_black_frac: a black slot's samples stay below this white fraction.
+        min_white_frac: a white slot's samples stay above this white fraction.
+        edge_margin_px: the sign's rim must stay this far inside the crop [px].
+        thresholds: binarisations tried in turn until one decodes: "mean"
+            (the paper's), then fallbacks "otsu", "high", "adaptive".
+        region_margin: ``decode_region`` grows the box by this fraction per side.
+    """
+
+    min_sign_px: float = 10.0
+    max_regions: int = 3
+    max_location_candidates: int = 2
+    max_direction_candidates: int = 3
+    min_contrast: float = 25.0
+    min_bit_margin: float = 0.12
+    min_direction_margin: float = 0.15
+    max_black_frac: float = 0.35
+    min_white_frac: float = 0.55
+    edge_margin_px: float = 0.0
+    thresholds: tuple[str, ...] = ("mean", "otsu", "high", "adaptive")
+    region_margin: float = 0.25
+
+
+@dataclass(frozen=True)
+class DecodeResult:
+    """The decoder's reading of one crop.
+
+    Attributes:
+        code: the decoded code "0000".."1111", or None.
+        reason: "ok" when ``code`` is set, else why not (see ``REASONS``).
+        keypoints_px: keypoint name -> (u, v) in the pixels of the image passed
+            in (centres at integers): ``center``, ``direction`` and each white
+            ``slotK``. Empty when there is no code.
+        ellipse: the disc's image ((cx, cy), (major, minor), angle_deg), full
+            axes, cv2.RotatedRect angle convention; None when unknown.
+        quality: confidence in [0, 1] (bit margins and fit residual).
+        sigma_px: estimated standard deviation of each keypoint coordinate
+            [px], for the estimator's measurement noise.
+        image_H_sign: (3, 3) homography from the sign plane, in units of the
+            disc diameter (x right, y up, origin at the centre), to image
+            pixels; None when there is no code.
+        residual_px: RMS residual of the homography fit [px].
+    """
+
+    code: str | None
+    reason: str
+    keypoints_px: dict[str, tuple[float, float]] = field(default_factory=dict)
+    ellipse: Ellipse | None = None
+    quality: float = 0.0
+    sigma_px: float = float("inf")
+    image_H_sign: np.ndarray | None = None
+    residual_px: float = float("nan")
+
+    @property
+    def ok(self) -> bool:
+        return self.code is not None
+
+
+@dataclass
+class _Hole:
+    centroid: np.ndarray  # (2,) px
+    area: float  # px^2 (contour polygon)
+    cov: np.ndarray  # (2, 2) second central moments / area [px^2]
+    aspect: float
+
+
+def _fail(reason: str, quality: float = 0.0, ellipse: Ellipse | None = None) -> DecodeResult:
+    return DecodeResult(code=None, reason=reason, quality=quality, ellipse=ellipse)
+
+
+def _moments(contour: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+    m = cv2.moments(contour)
+    a = m["m00"]
+    if a <= 0:
+        return None
+    c = np.array([m["m10"] / a, m["m01"] / a])
+    cov = np.array([[m["mu20"], m["mu11"]], [m["mu11"], m["mu02"]]]) / a
+    return a, c, cov
+
+
+def _eig2(cov: np.ndarray) -> tuple[float, float]:
+    """Eigenvalues (small, large) of a symmetric 2x2 matrix."""
+    a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+    m = 0.5 * (a + c)
+    r = math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
+    return m - r, m + r
+
+
+def _hole(contour: np.ndarray, area: float) -> _Hole:
+    mo = _moments(contour) if area > 0 else None
+    if mo is None:
+        # A one-pixel-wide hole traces to a zero-area polygon: use its points.
+        pts = contour.reshape(-1, 2).astype(float)
+        c = pts.mean(axis=0)
+        d = pts - c
+        cov = d.T @ d / len(pts)
+        area = float(len(pts))
+    else:
+        area, c, cov = mo
+    cov = cov + _PIXEL_COV  # a pixel's own extent
+    lo, hi = _eig2(cov)
+    aspect = math.sqrt(hi / max(lo, 1e-9))
+    return _Hole(centroid=c, area=area, cov=cov, aspect=aspect)
+
+
+def _whitener(cov: np.ndarray, variance_per_unit: float) -> np.ndarray | None:
+    """(2, 2) map from image offsets [px] to sign-plane units (y up), up to a rotation.
+
+    ``cov`` is the image second-moment matrix of a shape whose sign-plane
+    second moments are ``variance_per_unit * I`` (a disc or a square). The
+    inverse square root undoes the affine part of the view; the v-axis flip
+    keeps the result a proper rotation away from the sign frame.
+    """
+    # Flip v (down) to y (up): the off-diagonal term changes sign.
+    a, b, c = float(cov[0, 0]), -float(cov[0, 1]), float(cov[1, 1])
+    det = a * c - b * b
+    if det <= 1e-12 or a <= 0:
+        return None
+    # Inverse square root of [[a, b], [b, c]] in closed form.
+    sq = math.sqrt(det)
+    t = math.sqrt(a + c + 2 * sq)
+    k = math.sqrt(variance_per_unit) / (sq * t)
+    inv_sqrt = k * np.array([[c + sq, -b], [-b, a + sq]])
+    return inv_sqrt * _FLIP_COLS
+
+
+def _sample(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear gray values at (N, 2) pixel positions (border replicated)."""
+    m = uv.astype(np.float32).reshape(1, -1, 2)
+    out = cv2.remap(gray, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1).astype(np.float64)
+
+
+@dataclass
+class _Reading:
+    code: str | None
+    reason: str
+    margin: float
+    black: float
+    white: float
+
+
+def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSettings) -> _Reading:
+    """Classify the five slot positions from gray levels under ``image_H_sign``.
+
+    Each slot is black, a coded (wide) white rectangle, or the thin directional
+    one. The pattern must hold exactly one directional rectangle, and that at
+    slot position 0 (where the contours put it), with a clear margin.
+    """
+    vals = _sample(gray, _project(image_H_sign, _SAMPLES))
+    blacks = np.sort(vals[_S_BLACK])
+    # A low quantile, not the median: light leaking onto a few black samples
+    # must show up as a spread, not raise the black level.
+    black = float(blacks[3])
+    locs = np.sort(vals[_S_LOC])
+    white = float(locs[len(locs) // 2])
+    contrast = white - black
+    if contrast < settings.min_contrast:
+        return _Reading(None, "low_contrast", 0.0, black, white)
+    # The disc between the parts must be dark and the location square white
+    # throughout: a random dark blob with two bright holes is not a sign.
+    inv = 1.0 / contrast
+    worst_black = (blacks[-2] - black) * inv  # the second brightest of 15
+    worst_white = (locs[0] - black) * inv
+    dir_len = float((vals[_S_DIR_LEN].min() - black) * inv)
+    if worst_black > 0.3 or worst_white < 0.6 or dir_len < 0.45:
+        return _Reading(None, "inconsistent", 0.0, black, white)
+    t = (vals[:_N_SLOT_SAMPLES].reshape(N_BITS + 1, _N_OFFSETS) - black) * inv
+    feats = np.stack([t[:, _N_OFFSETS // 2], t.mean(axis=1)], axis=1)  # (5, 2)
+    cost_black = ((feats - _CLASS_BLACK) ** 2).sum(axis=1)
+    cost_dir = ((feats - _CLASS_DIRECTION) ** 2).sum(axis=1)
+    cost_coded = ((feats - _CLASS_CODED) ** 2).sum(axis=1)
+    best_bit = np.minimum(cost_black, cost_coded)
+    rotation_cost = cost_dir + best_bit.sum() - best_bit
+    order = np.argsort(rotation_cost)
+    direction_margin = float(rotation_cost[order[1]] - rotation_cost[order[0]])
+    if order[0] != 0 or direction_margin < settings.min_direction_margin:
+        return _Reading(None, "ambiguous_direction", direction_margin, black, white)
+    bits = cost_coded[1:] < cost_black[1:]
+    bit_margin = float(np.abs(cost_coded[1:] - cost_black[1:]).min())
+    # Each slot must be clearly one thing: a half-white slot (dirt, a cable,
+    # heavy blur, a wrong geometry) is refused rather than guessed.
+    lo, hi = settings.max_black_frac, settings.min_white_frac
+    centre = t[:, _N_OFFSETS // 2]
+    inner = t[:, 1:-1].min(axis=1)
+    white_ok = (centre >= hi) & (inner >= hi - 0.1) & (feats[:, 1] >= hi)
+    black_ok = (centre <= lo) & (t.max(axis=1) <= lo + 0.1)
+    clear = np.where(bits, white_ok[1:], black_ok[1:])
+    dir_ok = centre[0] >= hi - 0.1 and t[0, 0] <= lo + 0.1 and t[0, -1] <= lo + 0.1
+    if bit_margin < settings.min_bit_margin or not clear.all() or not dir_ok:
+        return _Reading(None, "inconsistent", min(bit_margin, direction_margin), black, white)
+    code = "".join("1" if b else "0" for b in bits)
+    return _Reading(code, "ok", min(bit_margin, direction_margin), black, white)
+
+
+def _subpixel_centroids(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    parts: list[int],
+    black: float,
+    white: float,
+    pad_px: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gray-level centroids of white parts, each in a window around its prediction.
+
+    The weight of a pixel is its white fraction (I - black) / (white - black)
+    in [0, 1]: the covered area of an anti-aliased, blurred rectangle, whose
+    centroid is the rectangle's area centroid as long as the window holds the
+    whole blur (unlike a binary contour's, which moves with the threshold).
+    The window is the predicted rectangle grown by ``pad_px``, at most
+    halfway to its neighbours in the sign plane.
+
+    Returns:
+        (P, 2) centroids [px] and (P,) boolean "measured".
+    """
+    h, w = gray.shape
+    out = np.zeros((len(parts), 2))
+    valid = np.zeros(len(parts), bool)
+    c0, cx, cy = _project(image_H_sign, _UNIT_STEPS)
+    scale = math.sqrt(abs(float(np.cross(cx - c0, cy - c0)))) / 0.01  # px per diameter
+    grow = min(pad_px / max(scale, 1e-9), 0.035)
+    big = _PART_QUADS[parts] + grow * _PART_GROW[parts]
+    polys = _project(image_H_sign, big.reshape(-1, 2)).reshape(len(parts), 4, 2)
+    inv_contrast = 1.0 / max(white - black, 1e-6)
+    boxes = np.concatenate([np.floor(polys.min(axis=1)), np.ceil(polys.max(axis=1)) + 1], axis=1)
+    for i, poly in enumerate(polys):
+        x0, y0, x1, y1 = (int(v) for v in boxes[i])
+        if x0 < 0 or y0 < 0 or x1 > w or y1 > h:
+            continue
+        mask = np.zeros((y1 - y0, x1 - x0), np.float32)
+        pts = np.round((poly - (x0, y0)) * 16).astype(np.int32)
+        cv2.fillConvexPoly(mask, pts, 1.0, lineType=cv2.LINE_8, shift=4)
+        wt = (gray[y0:y1, x0:x1] - np.float32(black)) * np.float32(inv_contrast)
+        np.maximum(wt, 0.0, out=wt)
+        np.minimum(wt, 1.0, out=wt)
+        wt *= mask
+        cols = wt.sum(axis=0)
+        s0 = float(cols.sum())
+        if s0 <= 0:
+            continue
+        su = float(cols @ _ARANGE[: x1 - x0])
+        sv = float(wt.sum(axis=1) @ _ARANGE[: y1 - y0])
+        out[i] = (x0 + su / s0, y0 + sv / s0)
+        valid[i] = True
+    return out, valid
+
+
+def _fit_parts(
+    parts: list[int],
+    measured_px: np.ndarray,
+    fallback: np.ndarray | None,
+    passes: int = 2,
+) -> tuple[np.ndarray | None, float]:
+    """Homography with predicted rectangle centroids matching ``measured_px``.
+
+    A rectangle's image centroid is not the image of its centre under a
+    perspective map. Starting from a fit of the centres, each pass moves the
+    targets by the centroid offset that the current homography predicts
+    (exact, from the projected polygons) and refits; two passes converge to
+    far below the noise since the offset is second order in the part size.
+
+    Returns:
+        (image_H_sign, rms residual [px]) or (None, nan).
+    """
+    src = _PART_CENTRES[parts]
+    quads = _PART_QUADS[parts]
+    n = len(parts)
+    if n >= 4:
+        h = fit_homography(src, measured_px)
+    elif n == 3:
+        h = fit_affine(src, measured_px)
+    else:
+        h = fallback
+    if h is None:
+        return None, float("nan")
+    if n >= 4:
+        for _ in range(passes):
+            proj_quads = _project(h, quads.reshape(-1, 2)).reshape(quads.shape)
+            offset = polygon_centroids(proj_quads) - _project(h, src)
+            h_new = fit_homography(src, measured_px - offset)
+            if h_new is None:
+                break
+            h = h_new
+    proj_quads = _project(h, quads.reshape(-1, 2)).reshape(quads.shape)
+    resid = polygon_centroids(proj_quads) - measured_px
+    rms = float(np.sqrt((resid**2).sum(axis=1).mean()))
+    return h, rms
+
+
+def _affine_from_two(
+    loc: np.ndarray, direction: np.ndarray, whitener: np.ndarray
+) -> np.ndarray | None:
+    """Affine image_H_sign from the location and directional centres and a whitener.
+
+    ``whitener`` maps image offsets to sign units up to a rotation; the
+    rotation (and a scale check) come from the directional rectangle.
+    """
+    q = whitener @ (direction - loc)
+    r = float(np.hypot(*q))
+    if r <= 1e-9:
+        return None
+    # Rotate q onto +y (the directional rectangle's sign-plane direction).
+    ang = math.atan2(q[1], q[0]) - math.pi / 2
+    c, s = math.cos(-ang), math.sin(-ang)
+    rot = np.array([[c, -s], [s, c]])
+    m = (_SLOT_RADIUS / r) * rot @ whitener  # sign_from_img
+    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    if abs(det) < 1e-12:
+        return None
+    img_from_sign = np.array([[m[1, 1], -m[0, 1]], [-m[1, 0], m[0, 0]]]) / det
+    h = np.eye(3)
+    h[:2, :2] = img_from_sign
+    h[:2, 2] = loc
+    return h
+
+
+def _inside(points: np.ndarray, w: int, h: int, margin: float) -> bool:
+    return bool(
+        (points[:, 0] >= -0.5 + margin).all()
+        and (points[:, 0] <= w - 0.5 - margin).all()
+        and (points[:, 1] >= -0.5 + margin).all()
+        and (points[:, 1] <= h - 0.5 - margin).all()
+    )
+
+
+def _sigma_px(residual_px: float, n_parts: int, scale_px: float) -> float:
+    """Keypoint noise [px] from the fit residual and the apparent size.
+
+    The residual measures the centroid noise when there are more parts than
+    the homography needs; a size term covers sampling/blur errors that the
+    residual cannot see (few parts, or errors common to all parts).
+    """
+    floor = 0.03 + 1.5 / max(scale_px, 1.0)
+    if n_parts > 4 and math.isfinite(residual_px):
+        dof_scale = math.sqrt(2 * n_parts / (2 * n_parts - 8))
+        return float(math.hypot(floor, residual_px * dof_scale))
+    return float(floor * (1.5 if n_parts < 4 else 1.2))
+
+
+def _as_gray(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim == 3:
+        code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+        img = cv2.cvtColor(img, code)
+    if img.dtype != np.uint8:
+        img = np.clip(img, 0, 255).astype(np.uint8)
+    return img
+
+
+def decode_roi(
+    gray: np.ndarray,
+    codes: Iterable[str] | None = None,
+    settings: DecoderSettings = DecoderSettings(),
+) -> DecodeResult:
+    """Decode the one sign in a crop (paper §1.2, steps 2-7).
+
+    Args:
+        gray: (H, W) uint8 gray crop (a (H, W, 3) BGR crop is converted),
+            the sign roughly centred and filling much of it.
+        codes: the codes the map holds; any other decoded code is dropped
+            (``code_not_in_map``). None accepts all 16.
+        settings: tuning.
+
+    Returns:
+        The reading; keypoints in the crop's pixels.
+    """
+    g = _as_gray(gray)
+    if g.ndim != 2 or min(g.shape) < settings.min_sign_px:
+        return _fail("no_sign")
+    allowed = None if codes is None else frozenset(codes)
+    best = _fail("no_sign")
+    for kind in settings.thresholds:
+        dark = _dark_mask(g, kind)
+        if dark is None:
+            continue
+        res = _decode_at(g, dark, allowed, settings)
+        if res.code is not None or res.reason == "code_not_in_map":
+            return res
+        if _REASON_RANK[res.reason] > _REASON_RANK[best.reason]:
+            best = res
+    return best
+
+
+def _dark_mask(g: np.ndarray, kind: str) -> np.ndarray | None:
+    """255 where the crop is dark (the disc), 0 where white, by threshold ``kind``.
+
+    ``mean`` is the paper's step 3. The others are fallbacks for crops where
+    the mean fails: Otsu's two-class split, a threshold halfway between the
+    mean and the brightest pixels (blur merging nearby white parts), and a
+    local mean (backgrounds darker than the disc's surroundings on one side).
+    """
+    if kind == "mean":
+        _, dark = cv2.threshold(g, cv2.mean(g)[0], 255, cv2.THRESH_BINARY_INV)
+    elif kind == "otsu":
+        _, dark = cv2.threshold(g, 0, 255, cv2.THRESH_BINARY_INV + cv2.THRESH_OTSU)
+    elif kind == "high":
+        flat = g.reshape(-1)
+        k = int(0.98 * (flat.size - 1))
+        top = float(np.partition(flat, k)[k])
+        _, dark = cv2.threshold(g, 0.5 * (cv2.mean(g)[0] + top), 255, cv2.THRESH_BINARY_INV)
+    elif kind == "adaptive":
+        block = max(3, (min(g.shape) // 3) | 1)
+        dark = cv2.adaptiveThreshold(
+            g, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, block, 0
+        )
+    else:
+        raise ValueError(f"unknown threshold kind {kind!r}")
+    return dark
+
+
+def _decode_at(
+    g: np.ndarray, dark: np.ndarray, allowed: frozenset[str] | None, settings: DecoderSettings
+) -> DecodeResult:
+    h, w = g.shape
+    contours, hierarchy = cv2.findContours(dark, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return _fail("no_sign")
+    hier = hierarchy[0]
+    regions = []
+    for i in range(len(contours)):
+        if hier[i][3] >= 0 or hier[i][2] < 0:
+            continue
+        area = cv2.contourArea(contours[i])
+        if area < 0.5 * settings.min_sign_px**2:
+            continue
+        regions.append((area, i))
+    if not regions:
+        return _fail("no_sign")
+    regions.sort(reverse=True)  # step 4: the largest extent first
+    best_fail = _fail("no_location")
+    crop_centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    for _, i in regions[: settings.max_regions]:
+        res = _decode_region_contour(g, contours, hier, i, crop_centre, allowed, settings)
+        if res.code is not None or res.reason == "code_not_in_map":
+            return res
+        if _REASON_RANK[res.reason] > _REASON_RANK[best_fail.reason]:
+            best_fail = res
+    return best_fail
+
+
+_REASON_RANK = {
+    "no_sign": 0,
+    "no_location": 1,
+    "low_contrast": 2,
+    "ambiguous_direction": 3,
+    "inconsistent": 4,
+    "cut_by_edge": 5,
+    "code_not_in_map": 6,
+    "ok": 7,
+}
+
+
+def _decode_region_contour(
+    g: np.ndarray,
+    contours,
+    hier: np.ndarray,
+    i: int,
+    crop_centre: np.ndarray,
+    allowed: frozenset[str] | None,
+    settings: DecoderSettings,
+) -> DecodeResult:
+    h, w = g.shape
+    outer = contours[i]
+    mo = _moments(outer)
+    if mo is None:
+        return _fail("no_sign")
+    area, outer_c, outer_cov = mo
+    holes: list[_Hole] = []
+    child = hier[i][2]
+    min_hole = max(1.0, 2e-3 * area)
+    while child >= 0:
+        hc = contours[child]
+        # Polygon area of a hole's contour (its bordering dark pixels) is about
+        # its pixel count minus half its perimeter; thin holes count by points.
+        a = cv2.contourArea(hc)
+        if max(a, 0.5 * len(hc)) >= min_hole:
+            holes.append(_hole(hc, a))
+        child = hier[child][0]
+    if len(holes) < 2:
+        return _fail("no_location")
+    # A region is disc-like when its area matches the ellipse of its moments
+    # and it does not touch the crop's border; then its centroid and second
+    # moments describe the disc.
+    det = float(np.linalg.det(outer_cov))
+    x, y, bw, bh = cv2.boundingRect(outer)
+    touches = x <= 0 or y <= 0 or x + bw >= w or y + bh >= h
+    disc_like = det > 0 and abs(area / (4 * math.pi * math.sqrt(det)) - 1.0) < 0.12 and not touches
+    centre_ref = outer_c if disc_like else crop_centre
+    # Step 5: the hole closest to the centre of the sign's extent.
+    by_dist = sorted(range(len(holes)), key=lambda k: np.hypot(*(holes[k].centroid - centre_ref)))
+    best = _fail("no_location")
+    for li in by_dist[: settings.max_location_candidates]:
+        loc = holes[li]
+        if disc_like:
+            # The disc's second moments: (R^2 / 4) I with R = 0.5 diameters.
+            whitener = _whitener(outer_cov, 0.0625)
+        else:
+            # The location square's: side^2 / 12 I.
+            whitener = _whitener(loc.cov, _LOCATION_SIDE**2 / 12.0)
+        if whitener is None:
+            continue
+        rel = np.array([whitener @ (hl.centroid - loc.centroid) for hl in holes])
+        radius = np.hypot(rel[:, 0], rel[:, 1])
+        ring = [k for k in range(len(holes)) if k != li and 0.17 < radius[k] < 0.45]
+        if not ring:
+            continue
+        # Step 6: smallest area and largest aspect ratio.
+        ring_sorted = sorted(ring, key=lambda k: -holes[k].aspect / holes[k].area)
+        for di in ring_sorted[: settings.max_direction_candidates]:
+            res = _try_hypothesis(g, holes, li, di, rel, radius, whitener, allowed, settings)
+            if res.code is not None or res.reason == "code_not_in_map":
+                return res
+            if _REASON_RANK[res.reason] > _REASON_RANK[best.reason]:
+                best = res
+    return best
+
+
+def _try_hypothesis(
+    g: np.ndarray,
+    holes: list[_Hole],
+    li: int,
+    di: int,
+    rel: np.ndarray,
+    radius: np.ndarray,
+    whitener: np.ndarray,
+    allowed: frozenset[str] | None,
+    settings: DecoderSettings,
+) -> DecodeResult:
+    h, w = g.shape
+    # Step 7: clockwise angle of every ring hole from centre -> directional.
+    ang = np.arctan2(rel[:, 1], rel[:, 0])
+    cw = np.degrees(ang[di] - ang) % 360.0  # sign frame y up: clockwise = decreasing
+    slots: dict[int, int] = {}
+    for k in range(len(holes)):
+        if k in (li, di) or not 0.17 < radius[k] < 0.45:
+            continue
+        s = int(round(cw[k] / 72.0)) % 5
+        if s == 0 or abs(cw[k] - 72.0 * round(cw[k] / 72.0)) > 26.0:
+            continue
+        if s in slots and holes[slots[s]].area >= holes[k].area:
+            continue
+        slots[s] = k
+    parts = [0, 1] + [1 + s for s in sorted(slots)]
+    measured = np.array(
+        [holes[li].centroid, holes[di].centroid] + [holes[slots[s]].centroid for s in sorted(slots)]
+    )
+    fallback = _affine_from_two(holes[li].centroid, holes[di].centroid, whitener)
+    image_H_sign, _ = _fit_parts(parts, measured, fallback, passes=0)
+    if image_H_sign is None:
+        return _fail("no_location")
+    rim = _project(image_H_sign, _RIM)
+    if not _inside(rim, w, h, settings.edge_margin_px):
+        # Only a plausible sign counts as cut: a wild hypothesis can also
+        # put its rim outside.
+        span = float(np.ptp(rim, axis=0).max())
+        return _fail("cut_by_edge" if span < 1.6 * max(w, h) else "no_location")
+    # Every hole the hypothesis leaves unexplained must be small: a sign
+    # shows no white inside its disc besides its rectangles.
+    used = {li, di, *slots.values()}
+    others = [k for k in range(len(holes)) if k not in used]
+    if others:
+        ok, sign_H_image = cv2.invert(image_H_sign)
+        pos = _project(sign_H_image, np.array([holes[k].centroid for k in others]))
+        inside = np.hypot(pos[:, 0], pos[:, 1]) < 0.47
+        big = np.array([holes[k].area for k in others]) > 0.3 * holes[li].area
+        if (inside & big).any():
+            return _fail("inconsistent")
+    reading = _read_slots(g, image_H_sign, settings)
+    if reading.code is None:
+        return _fail(reading.reason, quality=max(0.0, reading.margin))
+    contour_code = "".join("1" if s in slots else "0" for s in range(1, N_BITS + 1))
+    if reading.code != contour_code:
+        return _fail("inconsistent", quality=reading.margin)
+    code = reading.code
+    # Sub-pixel refinement: gray-level centroids of every white part.
+    parts = [0, 1] + [1 + s for s in range(1, N_BITS + 1) if code[s - 1] == "1"]
+    pad = 1.5
+    cents, valid = _subpixel_centroids(g, image_H_sign, parts, reading.black, reading.white, pad)
+    use = [p for p, v in zip(parts, valid, strict=True) if v]
+    if len(use) >= 2:
+        fallback = _refit_fallback(image_H_sign, cents, valid)
+        h_ref, rms = _fit_parts(use, cents[valid], fallback, passes=1)
+        if h_ref is not None:
+            image_H_sign = h_ref
+    else:
+        rms = float("nan")
+    if allowed is not None and code not in allowed:
+        return _fail("code_not_in_map", quality=reading.margin)
+    kp_names = ["center", "direction"] + [
+        f"slot{s}" for s in range(1, N_BITS + 1) if code[s - 1] == "1"
+    ]
+    kp_idx = [_PART_NAMES.index(n) for n in kp_names]
+    uv = _project(image_H_sign, _PART_CENTRES[kp_idx])
+    keypoints = {n: (float(p[0]), float(p[1])) for n, p in zip(kp_names, uv, strict=True)}
+    ellipse = disc_ellipse(image_H_sign, 1.0)
+    scale_px = ellipse[1][1]
+    sigma = _sigma_px(rms, len(use), scale_px)
+    quality = float(
+        np.clip(reading.margin / 0.5, 0.0, 1.0)
+        * math.exp(-(rms if math.isfinite(rms) else 0.0) / 0.5)
+    )
+    return DecodeResult(
+        code=code,
+        reason="ok",
+        keypoints_px=keypoints,
+        ellipse=ellipse,
+        quality=quality,
+        sigma_px=sigma,
+        image_H_sign=image_H_sign,
+        residual_px=rms,
+    )
+
+
+def _refit_fallback(image_H_sign: np.ndarray, cents: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """For two parts only: keep the current linear part, move it onto the new centre."""
+    h = image_H_sign.copy()
+    if valid[0]:
+        shift = cents[0] - _project(image_H_sign, _PART_CENTRES[:1])[0]
+        h = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]]) @ h
+    return h
+
+
+def decode_region(
+    image_gray: np.ndarray,
+    bbox_px: tuple[float, float, float, float],
+    codes: Iterable[str] | None = None,
+    settings: DecoderSettings = DecoderSettings(),
+) -> DecodeResult:
+    """Decode the sign in ``bbox_px`` of a full image; keypoints in full-image pixels.
+
+    Args:
+        image_gray: (H, W) uint8 image (BGR is converted).
+        bbox_px: (x, y, w, h) detector box [px].
+        codes: the map's codes (see ``decode_roi``).
+        settings: tuning; the box grows by ``settings.region_margin`` per side.
+    """
+    img = _as_gray(image_gray)
+    ih, iw = img.shape[:2]
+    x, y, bw, bh = (float(v) for v in bbox_px)
+    m = settings.region_margin
+    x0 = max(int(math.floor(x - m * bw)), 0)
+    y0 = max(int(math.floor(y - m * bh)), 0)
+    x1 = min(int(math.ceil(x + bw * (1 + m))), iw)
+    y1 = min(int(math.ceil(y + bh * (1 + m))), ih)
+    if x1 - x0 < settings.min_sign_px or y1 - y0 < settings.min_sign_px:
+        return _fail("no_sign")
+    res = decode_roi(img[y0:y1, x0:x1], codes, settings)
+    if res.code is None:
+        return res
+    shift = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
+    (cx, cy), axes, ang = res.ellipse
+    return DecodeResult(
+        code=res.code,
+        reason=res.reason,
+        keypoints_px={k: (u + x0, v + y0) for k, (u, v) in res.keypoints_px.items()},
+        ellipse=((cx + x0, cy + y0), axes, ang),
+        quality=res.quality,
+        sigma_px=res.sigma_px,
+        image_H_sign=shift @ res.image_H_sign,
+        residual_px=res.residual_px,
+    )

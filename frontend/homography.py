@@ -1,0 +1,122 @@
+"""Plane-to-image homographies for the sign: mapping, fitting, disc ellipse.
+
+Shared by the decoder (fitting the sign's homography to its rectangles) and the
+synthetic crop generator (ground truth). A homography here is a (3, 3) array
+``image_H_sign`` mapping sign-plane points (x, y, 1) to image pixels (u, v, 1),
+normalised so that ``H[2, 2] == 1`` where possible.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+Ellipse = tuple[tuple[float, float], tuple[float, float], float]
+
+
+def apply_homography(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Map (N, 2) points through the (3, 3) homography ``h``; returns (N, 2)."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 1, 2)
+    return cv2.perspectiveTransform(xy, np.asarray(h, dtype=np.float64)).reshape(-1, 2)
+
+
+def fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
+    """Least-squares homography with ``dst ~ H src`` (linear, h33 = 1).
+
+    Both point sets are shifted to their centroids and scaled to unit spread
+    first (Hartley), which keeps the linear system well conditioned.
+
+    Args:
+        src: (N, 2) points, N >= 4, no three on a line.
+        dst: (N, 2) corresponding points.
+
+    Returns:
+        (3, 3) homography, or None when the points are degenerate.
+    """
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    n = len(src)
+    if n < 4:
+        return None
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    s = src - cs
+    d = dst - cd
+    ks = math.sqrt(2.0 * n / max(float((s * s).sum()), 1e-24))
+    kd = math.sqrt(2.0 * n / max(float((d * d).sum()), 1e-24))
+    s *= ks
+    d *= kd
+    a = np.zeros((2 * n, 8))
+    a[0::2, 0:2] = s
+    a[0::2, 2] = 1.0
+    a[0::2, 6:8] = -d[:, :1] * s
+    a[1::2, 3:5] = s
+    a[1::2, 5] = 1.0
+    a[1::2, 6:8] = -d[:, 1:2] * s
+    ok, x = cv2.solve(a, d.reshape(-1, 1), flags=cv2.DECOMP_QR if n > 4 else cv2.DECOMP_LU)
+    if not ok:
+        return None
+    hn = np.append(x.ravel(), 1.0).reshape(3, 3)
+    ts = np.array([[ks, 0.0, -ks * cs[0]], [0.0, ks, -ks * cs[1]], [0.0, 0.0, 1.0]])
+    td_inv = np.array([[1.0 / kd, 0.0, cd[0]], [0.0, 1.0 / kd, cd[1]], [0.0, 0.0, 1.0]])
+    h = td_inv @ hn @ ts
+    if not np.all(np.isfinite(h)) or abs(h[2, 2]) < 1e-12:
+        return None
+    return h / h[2, 2]
+
+
+def fit_affine(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
+    """Least-squares affine map (as a (3, 3) homography) with ``dst ~ A src``; N >= 3."""
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    if len(src) < 3:
+        return None
+    a = np.column_stack([src, np.ones(len(src))])
+    ok, sol = cv2.solve(a, dst, flags=cv2.DECOMP_QR if len(src) > 3 else cv2.DECOMP_LU)
+    if not ok:
+        return None
+    h = np.eye(3)
+    h[:2, :] = sol.T
+    return h
+
+
+def polygon_centroids(polys: np.ndarray) -> np.ndarray:
+    """Area centroids of (K, M, 2) polygons; returns (K, 2)."""
+    x, y = polys[..., 0], polys[..., 1]
+    nxt = np.arange(1, x.shape[1] + 1) % x.shape[1]
+    xn, yn = x[:, nxt], y[:, nxt]
+    cross = x * yn - xn * y
+    area = cross.sum(axis=1) / 2.0
+    cx = ((x + xn) * cross).sum(axis=1) / (6.0 * area)
+    cy = ((y + yn) * cross).sum(axis=1) / (6.0 * area)
+    return np.stack([cx, cy], axis=1)
+
+
+def ellipse_from_conic(c: np.ndarray) -> Ellipse:
+    """Centre, full axes (major, minor) and angle [deg] of the ellipse x^T c x = 0.
+
+    Angle: of the major axis, from the u axis toward +v, in [0, 180)
+    (cv2.RotatedRect convention, axes given major first). Closed form: the
+    2x2 algebra is cheaper in plain floats than through numpy.linalg.
+    """
+    a, b, d = float(c[0, 0]), float(c[0, 1]), float(c[1, 1])
+    e, f, g = float(c[0, 2]), float(c[1, 2]), float(c[2, 2])
+    det = a * d - b * b
+    cx = (b * f - d * e) / det
+    cy = (b * e - a * f) / det
+    k = -(a * cx * cx + 2 * b * cx * cy + d * cy * cy + 2 * e * cx + 2 * f * cy + g)
+    m = 0.5 * (a + d)
+    r = math.sqrt(0.25 * (a - d) ** 2 + b * b)
+    lo, hi = (m - r) / k, (m + r) / k
+    # Major axis: eigenvector of the smaller eigenvalue (m - r).
+    angle = 0.5 * math.degrees(math.atan2(2 * b, a - d)) + 90.0
+    return (cx, cy), (2.0 / math.sqrt(lo), 2.0 / math.sqrt(hi)), angle % 180.0
+
+
+def disc_ellipse(image_H_sign: np.ndarray, diameter: float) -> Ellipse:
+    """Exact image of the rim of a disc of ``diameter`` centred at the sign origin."""
+    r = diameter / 2.0
+    circle = np.diag([1.0, 1.0, -r * r])
+    _, hinv = cv2.invert(np.asarray(image_H_sign, dtype=np.float64))
+    return ellipse_from_conic(hinv.T @ circle @ hinv)
