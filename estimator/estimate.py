@@ -1,0 +1,343 @@
+"""Library entry point: every method's trajectory from a flight's observations.
+
+``estimate_trajectories`` runs the paper's per-frame baseline, per-frame PnP
+and the gtsam smoother (batch or iSAM2) and builds the outlier report;
+``estimator.results_io`` writes the result. The pipeline calls these; the
+CLI is a thin layer over them.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from estimator.camera import CameraModel
+from estimator.perframe import FramePose, PerFrameSettings, run_per_frame
+from estimator.smoother import (
+    STATUS_BRIDGED,
+    STATUS_OK,
+    Measurements,
+    SmootherResult,
+    SmootherSettings,
+    collect_measurements,
+    default_pose,
+    project,
+    residuals_px,
+    smooth_batch,
+    smooth_isam2,
+)
+from frontend.observations import FrameObservations
+from maps.loader import SignMap
+from signpose.errors import InputError
+
+log = logging.getLogger(__name__)
+
+METHODS = ("baseline", "pnp", "smoothed")
+SOLVERS = ("batch", "isam2")
+STATUS_NO_SIGN = "no sign seen"
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """What to estimate and how.
+
+    Attributes:
+        methods: which of "baseline", "pnp", "smoothed" to run.
+        solver: "batch" (Levenberg-Marquardt) or "isam2" (also gives the
+            causal per-frame result as method "causal").
+        per_frame: settings of the baseline and PnP.
+        smoother: settings of the factor graph.
+        misdecode_ratio: an observation "looks mis-decoded" when another
+            sign's centre fits it at least this many times better.
+    """
+
+    methods: tuple[str, ...] = METHODS
+    solver: str = "batch"
+    per_frame: PerFrameSettings = field(default_factory=PerFrameSettings)
+    smoother: SmootherSettings = field(default_factory=SmootherSettings)
+    misdecode_ratio: float = 5.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class MethodEstimate:
+    """One method's trajectory over all frames.
+
+    Attributes:
+        name: "baseline", "pnp", "smoothed" or "causal".
+        stamps_s: (N,) frame times [s].
+        world_T_cam: (N, 4, 4) camera poses; identity where not ``valid``.
+        valid: (N,) True where the method gives a pose.
+        sigma_xyz: (N, 3) position standard deviation, world axes [m]; NaN
+            where unknown (per-frame methods, or sigmas not computed).
+        signs_used: (N,) distinct map signs used per frame.
+        status: (N,) "ok", or why there is no pose / how it was obtained.
+    """
+
+    name: str
+    stamps_s: np.ndarray
+    world_T_cam: np.ndarray
+    valid: np.ndarray
+    sigma_xyz: np.ndarray
+    signs_used: np.ndarray
+    status: tuple[str, ...]
+
+    @property
+    def coverage(self) -> float:
+        return float(np.mean(self.valid)) if len(self.valid) else 0.0
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """A measurement the Huber kernel down-weights.
+
+    Attributes:
+        frame: frame index; code/keypoint: what was observed;
+        residual_px: reprojection residual at the solution [px];
+        weight: the Huber weight (< 1).
+    """
+
+    frame: int
+    code: str
+    keypoint: str
+    residual_px: float
+    weight: float
+
+
+@dataclass(frozen=True)
+class Misdecode:
+    """An observation whose pixels fit another sign far better than its decoded code's.
+
+    Attributes:
+        frame: frame index; code: the decoded code; likely_code: the better fit;
+        residual_px / likely_residual_px: centre residuals for both [px].
+    """
+
+    frame: int
+    code: str
+    likely_code: str
+    residual_px: float
+    likely_residual_px: float
+
+
+@dataclass(frozen=True)
+class OutlierReport:
+    """Outliers of a run (see ``estimate_trajectories``)."""
+
+    downweighted: tuple[Outlier, ...]
+    misdecoded: tuple[Misdecode, ...]
+    baseline_rejected: tuple[tuple[int, str], ...]
+    unknown_codes: tuple[tuple[int, str], ...]
+
+    def to_dict(self) -> dict:
+        return {
+            "downweighted": [asdict(o) for o in self.downweighted],
+            "misdecoded": [asdict(o) for o in self.misdecoded],
+            "baseline_rejected": [{"frame": f, "reason": r} for f, r in self.baseline_rejected],
+            "unknown_codes": [{"frame": f, "code": c} for f, c in self.unknown_codes],
+        }
+
+
+@dataclass(frozen=True)
+class EstimateResult:
+    """Everything ``estimate_trajectories`` found.
+
+    Attributes:
+        methods: name -> MethodEstimate, in run order.
+        frames: (N,) frame indices.
+        signs_seen: (N,) observations per frame whose code is in the map.
+        settings: the settings used.
+        outliers: the outlier report (empty when the smoother did not run).
+        timing_s: stage -> seconds.
+    """
+
+    methods: dict[str, MethodEstimate]
+    frames: np.ndarray
+    signs_seen: np.ndarray
+    settings: EstimatorSettings
+    outliers: OutlierReport
+    timing_s: dict[str, float]
+
+
+def _from_frame_poses(name: str, stamps: np.ndarray, poses: list[FramePose]) -> MethodEstimate:
+    n = len(poses)
+    T = np.tile(np.eye(4), (n, 1, 1))
+    valid = np.zeros(n, bool)
+    status = []
+    for i, p in enumerate(poses):
+        if p.world_T_cam is not None and np.all(np.isfinite(p.world_T_cam)):
+            T[i] = p.world_T_cam
+            valid[i] = True
+            status.append("ok")
+        else:
+            status.append(p.reason or "no pose")
+    used = np.array([p.signs_used for p in poses], dtype=np.int64)
+    return MethodEstimate(name, stamps, T, valid, np.full((n, 3), np.nan), used, tuple(status))
+
+
+def _from_smoother(
+    name: str, stamps: np.ndarray, r: SmootherResult, causal: bool = False
+) -> MethodEstimate:
+    T = r.causal_world_T_cam if causal else r.world_T_cam
+    valid = np.all(np.isfinite(T.reshape(len(T), -1)), axis=1)
+    T = np.where(valid[:, None, None], T, np.eye(4))
+    status = tuple(STATUS_OK if o else STATUS_BRIDGED for o in r.observed)
+    sigma = np.full_like(r.sigma_xyz, np.nan) if causal else r.sigma_xyz
+    return MethodEstimate(name, stamps, T, valid, sigma, r.signs_used.copy(), status)
+
+
+def check_inputs(
+    frames: Sequence[FrameObservations], sign_map: SignMap, camera: CameraModel, obs_source: str
+) -> None:
+    """InputError when the camera's image size or the map's codes do not fit the observations."""
+    if not frames:
+        raise InputError(f"{obs_source}: no frames")
+    sizes = {tuple(f.image_size) for f in frames}
+    for w, h in sizes:
+        if (w, h) != (camera.width, camera.height):
+            raise InputError(
+                f"{obs_source}: images are {w}x{h} but the camera file says "
+                f"{camera.width}x{camera.height}; pass the calibration of this camera"
+            )
+    seen = {s.code for f in frames for s in f.signs}
+    if seen and not seen & set(sign_map.codes):
+        src = sign_map.source or "map"
+        raise InputError(
+            f"{src}: the map shares no code with the observations in {obs_source} "
+            f"(observed {', '.join(sorted(seen))}); pass the map of this site"
+        )
+
+
+def _outliers(
+    meas: Measurements,
+    r: SmootherResult,
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    settings: EstimatorSettings,
+) -> tuple[tuple[Outlier, ...], tuple[Misdecode, ...]]:
+    k = settings.smoother.huber_k
+    res = residuals_px(meas, r, camera)
+    whitened = res / meas.sigma_px
+    down = np.nonzero(whitened > k)[0]
+    outliers = tuple(
+        Outlier(
+            int(frames[meas.frame[m]].frame),
+            meas.landmark_code[meas.landmark[m]],
+            meas.landmark_name[meas.landmark[m]],
+            float(res[m]),
+            float(k / whitened[m]),
+        )
+        for m in down
+    )
+    # Mis-decoding: the observation's centre against every map sign's centre.
+    centres = {sign.code: sign.center_m for sign in sign_map.signs}
+    codes = list(centres)
+    C = np.array([centres[c] for c in codes])
+    suspects = {(int(meas.frame[m]), int(meas.sign_index[m])) for m in down}
+    mis = []
+    for i, si in sorted(suspects):
+        obs = frames[i].signs[si]
+        if obs.code not in centres:
+            continue
+        from estimator.camera import undistort_px
+
+        uv = undistort_px(camera, np.array([obs.center_px]))[0]
+        T = np.repeat(r.world_T_cam[i][None], len(codes), axis=0)
+        d = np.linalg.norm(project(camera, T, C) - uv, axis=1)
+        own = d[codes.index(obs.code)]
+        d_other = d.copy()
+        d_other[codes.index(obs.code)] = np.inf
+        best = int(np.argmin(d_other))
+        if d_other[best] * settings.misdecode_ratio < own and d_other[best] < 3 * k * obs.sigma_px:
+            mis.append(
+                Misdecode(int(frames[i].frame), obs.code, codes[best], float(own), float(d[best]))
+            )
+    return outliers, tuple(mis)
+
+
+def estimate_trajectories(
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    settings: EstimatorSettings | None = None,
+    progress: bool = True,
+) -> EstimateResult:
+    """Every requested method's trajectory for one flight.
+
+    Args:
+        frames: the flight's observations in time order (raw pixels).
+        sign_map: the surveyed signs.
+        camera: the camera (its image size must match the observations).
+        settings: methods, solver and their settings.
+        progress: show tqdm bars over frames.
+
+    Returns:
+        The EstimateResult. Methods: "baseline", "pnp", "smoothed" as asked;
+        with the iSAM2 solver also "causal" (each frame's estimate right after
+        it was added).
+    """
+    import time
+
+    s = settings or EstimatorSettings()
+    if s.solver not in SOLVERS:
+        raise ValueError(f"unknown solver {s.solver!r}; use one of {SOLVERS}")
+    stamps = np.array([f.stamp_ns for f in frames], dtype=np.float64) * 1e-9
+    timing: dict[str, float] = {}
+    methods: dict[str, MethodEstimate] = {}
+    map_codes = set(sign_map.codes)
+    signs_seen = np.array(
+        [sum(o.code in map_codes for o in f.signs) for f in frames], dtype=np.int64
+    )
+    unknown = tuple((f.frame, o.code) for f in frames for o in f.signs if o.code not in map_codes)
+    per_frame: dict[str, list[FramePose]] = {}
+    wanted = set(s.methods)
+    for name in ("baseline", "pnp"):
+        # PnP also initialises the smoother (it works with fewer than 4 signs).
+        if name in wanted or (name == "pnp" and "smoothed" in wanted):
+            t0 = time.perf_counter()
+            per_frame[name] = run_per_frame(frames, sign_map, camera, name, s.per_frame, progress)
+            timing[name] = time.perf_counter() - t0
+            if name in wanted:
+                methods[name] = _from_frame_poses(name, stamps, per_frame[name])
+    down: tuple[Outlier, ...] = ()
+    mis: tuple[Misdecode, ...] = ()
+    if "smoothed" in wanted:
+        meas = collect_measurements(frames, sign_map, camera)
+        init = [p.world_T_cam for p in per_frame["pnp"]]
+        if "baseline" in per_frame:  # baseline where PnP has nothing
+            init = [
+                a if a is not None else b.world_T_cam
+                for a, b in zip(init, per_frame["baseline"], strict=True)
+            ]
+        default = default_pose(sign_map)
+        t0 = time.perf_counter()
+        if s.solver == "batch":
+            r = smooth_batch(meas, stamps, init, camera, s.smoother, default)
+        else:
+            causal_init = [p.world_T_cam for p in per_frame["pnp"]]
+            r = smooth_isam2(meas, stamps, causal_init, camera, s.smoother, default, progress)
+        timing["smoothed"] = time.perf_counter() - t0
+        timing["sigmas"] = r.sigma_seconds
+        methods["smoothed"] = _from_smoother("smoothed", stamps, r)
+        if r.causal_world_T_cam is not None:
+            methods["causal"] = _from_smoother("causal", stamps, r, causal=True)
+        down, mis = _outliers(meas, r, frames, sign_map, camera, s)
+    rejected = ()
+    if "baseline" in per_frame:
+        rejected = tuple(
+            (p.frame, p.reason) for p in per_frame["baseline"] if p.world_T_cam is None
+        )
+    return EstimateResult(
+        methods,
+        np.array([f.frame for f in frames], dtype=np.int64),
+        signs_seen,
+        s,
+        OutlierReport(down, mis, rejected, unknown),
+        timing,
+    )

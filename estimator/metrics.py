@@ -1,0 +1,174 @@
+"""Trajectory error metrics (numpy only).
+
+Every metric compares an estimate with ground truth after associating poses
+by timestamp (nearest ground-truth stamp within ``max_dt_s``, one to one, as
+evo's ``associate_trajectories``). Positions are camera centres, world frame [m].
+
+Definitions:
+    * ``mae_xyz``: per-axis mean absolute position error (the paper's Table 4).
+    * ``ate_rmse``: sqrt(mean ||p_est - p_gt||^2) without alignment, and
+      ``ate_rmse_aligned`` after the rigid SE(3) alignment (Umeyama, no scale)
+      of the estimated positions onto the ground truth (evo_ape -a).
+    * ``rpe_trans_per_m``: relative pose error, translation part, with the
+      step measured in metres travelled, as ``evo_rpe --delta 1 --delta_unit m``
+      (all_pairs off): walking the *ground truth* from its first associated
+      pose, a checkpoint is placed each time the accumulated path length
+      reaches ``delta_m`` (then the accumulator restarts); for each pair of
+      consecutive checkpoints (i, j) the error is
+      ``E = (gt_i^-1 gt_j)^-1 (est_i^-1 est_j)`` and its translation norm is
+      taken. Reported as the RMSE over pairs divided by ``delta_m``, so it
+      reads as metres of drift per metre travelled.
+    * ``coverage``: associated estimated poses / ground-truth poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from estimator.tum import Trajectory
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """Errors of one estimated trajectory against ground truth.
+
+    Attributes:
+        n_matched: associated poses.
+        coverage: n_matched / ground-truth poses.
+        mae_xyz: (3,) per-axis mean absolute error [m].
+        ate_rmse: ATE RMSE without alignment [m].
+        ate_rmse_aligned: ATE RMSE after SE(3) Umeyama alignment [m].
+        rpe_trans_per_m: RPE translation RMSE per metre travelled [m/m].
+        rpe_pairs: number of RPE pairs.
+    """
+
+    n_matched: int
+    coverage: float
+    mae_xyz: tuple[float, float, float]
+    ate_rmse: float
+    ate_rmse_aligned: float
+    rpe_trans_per_m: float
+    rpe_pairs: int
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["mae_xyz"] = list(self.mae_xyz)
+        return {
+            k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in d.items()
+        }
+
+
+def associate(stamps_est: np.ndarray, stamps_gt: np.ndarray, max_dt_s: float = 0.01):
+    """Index pairs (est, gt) matched by nearest timestamp within ``max_dt_s``, one to one.
+
+    Returns:
+        ((K,) estimate indices, (K,) ground-truth indices), in estimate order.
+    """
+    e = np.asarray(stamps_est, dtype=float)
+    g = np.asarray(stamps_gt, dtype=float)
+    if len(e) == 0 or len(g) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    order = np.argsort(g)
+    gs = g[order]
+    pos = np.clip(np.searchsorted(gs, e), 1, len(gs) - 1) if len(gs) > 1 else np.zeros(len(e), int)
+    if len(gs) > 1:
+        left = gs[pos - 1]
+        right = gs[pos]
+        pos = np.where(np.abs(e - left) <= np.abs(e - right), pos - 1, pos)
+    cand = order[pos]
+    ok = np.abs(g[cand] - e) <= max_dt_s
+    ie, ig = np.nonzero(ok)[0], cand[ok]
+    # One to one: keep the first estimate for each ground-truth pose.
+    _, first = np.unique(ig, return_index=True)
+    keep = np.sort(first)
+    return ie[keep], ig[keep]
+
+
+def umeyama_se3(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and translation t minimising sum ||dst - (R src + t)||^2 (no scale).
+
+    Args:
+        src: (N, 3) points; dst: (N, 3) points.
+
+    Returns:
+        ((3, 3) R, (3,) t).
+    """
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    cov = (dst - mu_d).T @ (src - mu_s) / len(src)
+    U, _, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    return R, mu_d - R @ mu_s
+
+
+def _rpe_pairs(gt_positions: np.ndarray, delta_m: float) -> list[tuple[int, int]]:
+    ids = []
+    acc = 0.0
+    for i in range(len(gt_positions)):
+        if i > 0:
+            acc += float(np.linalg.norm(gt_positions[i] - gt_positions[i - 1]))
+        if i == 0 or acc >= delta_m:
+            ids.append(i)
+            acc = 0.0
+    return list(zip(ids[:-1], ids[1:], strict=True))
+
+
+def rpe_translation(
+    est_T: np.ndarray, gt_T: np.ndarray, delta_m: float = 1.0
+) -> tuple[np.ndarray, int]:
+    """Translation errors [m] of relative poses over ``delta_m`` of ground-truth path."""
+    pairs = _rpe_pairs(gt_T[:, :3, 3], delta_m)
+    errs = []
+    for i, j in pairs:
+        rel_gt = np.linalg.inv(gt_T[i]) @ gt_T[j]
+        rel_est = np.linalg.inv(est_T[i]) @ est_T[j]
+        E = np.linalg.inv(rel_gt) @ rel_est
+        errs.append(float(np.linalg.norm(E[:3, 3])))
+    return np.asarray(errs), len(pairs)
+
+
+def compute_metrics(
+    est: Trajectory, gt: Trajectory, max_dt_s: float = 0.01, delta_m: float = 1.0
+) -> Metrics:
+    """All metrics of ``est`` against ``gt`` (see the module docstring)."""
+    ie, ig = associate(est.stamps_s, gt.stamps_s, max_dt_s)
+    n = len(ie)
+    nan = float("nan")
+    if n == 0:
+        return Metrics(0, 0.0, (nan, nan, nan), nan, nan, nan, 0)
+    pe, pg = est.world_t_cam[ie], gt.world_t_cam[ig]
+    d = pe - pg
+    mae = tuple(float(x) for x in np.mean(np.abs(d), axis=0))
+    ate = float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+    if n >= 3:
+        R, t = umeyama_se3(pe, pg)
+        da = pe @ R.T + t - pg
+        ate_al = float(np.sqrt(np.mean(np.sum(da * da, axis=1))))
+    else:
+        ate_al = nan
+    errs, n_pairs = rpe_translation(est.world_T_cam()[ie], gt.world_T_cam()[ig], delta_m)
+    rpe = float(np.sqrt(np.mean(errs**2)) / delta_m) if n_pairs else nan
+    return Metrics(n, n / len(gt), mae, ate, ate_al, rpe, n_pairs)
+
+
+def format_table(rows: dict[str, Metrics]) -> str:
+    """A plain-text table, one row per method (the paper's Table 4 errors and more)."""
+    head = (
+        f"{'method':<10} {'MAE x':>8} {'MAE y':>8} {'MAE z':>8} {'ATE':>8} "
+        f"{'ATE(al)':>8} {'RPE/m':>8} {'cover':>7}"
+    )
+    lines = [head, "-" * len(head)]
+
+    def f(x: float) -> str:
+        return f"{x:8.4f}" if np.isfinite(x) else f"{'-':>8}"
+
+    for name, m in rows.items():
+        lines.append(
+            f"{name:<10} {f(m.mae_xyz[0])} {f(m.mae_xyz[1])} {f(m.mae_xyz[2])} "
+            f"{f(m.ate_rmse)} {f(m.ate_rmse_aligned)} {f(m.rpe_trans_per_m)} {m.coverage:7.1%}"
+        )
+    return "\n".join(lines)

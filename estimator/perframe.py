@@ -1,0 +1,393 @@
+"""Per-frame camera poses: the paper's homography method (§3, Eqs. 7-13) and PnP.
+
+Both work on one frame at a time and never raise for a bad frame: they
+return a ``FramePose`` with ``world_T_cam=None`` and a reason instead.
+
+Conventions: ``world_T_cam`` is (4, 4), the camera axes are OpenCV's
+(x right, y down, z forward); pixels are undistorted with
+``estimator.camera.undistort_px`` before any pose math.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from estimator.camera import CameraModel, undistort_px
+from frontend.observations import FrameObservations
+from maps.loader import SignMap
+
+# Reasons a frame gets no pose (also used as status strings in the outputs).
+REASON_FEW_SIGNS = "fewer than 4 signs"
+REASON_FEW_POINTS = "fewer than 4 keypoints"
+REASON_COLLINEAR = "degenerate geometry: signs collinear"
+REASON_ONE_SPOT = "degenerate geometry: signs in one spot"
+REASON_HOMOGRAPHY = "homography failed"
+REASON_RANSAC = "fewer than 4 RANSAC inliers"
+REASON_BEHIND = "solution behind the camera"
+REASON_SPEED = "speed gate: too far from the previous pose"
+REASON_PNP = "PnP failed"
+REASON_NONFINITE = "non-finite solution"
+
+
+@dataclass(frozen=True)
+class PerFrameSettings:
+    """Settings of the per-frame solvers.
+
+    Attributes:
+        ransac_px: RANSAC inlier threshold [px] (homography and PnP RANSAC).
+        max_speed_mps: speed gate: a pose further than ``max_speed_mps * dt``
+            (plus ``gate_slack_m``) from the previous accepted one is rejected.
+            0 or less disables the gate.
+        gate_slack_m: distance always allowed by the speed gate [m] (noise).
+        gate_reset_frames: after this many consecutive gate rejections the
+            gate accepts again (otherwise one bad accepted pose would lock the
+            gate forever; not in the paper).
+        min_spread_m: signs whose centres spread less than this (largest
+            singular direction, RMS) are "in one spot" [m].
+        min_aspect: second over first principal spread below this => collinear.
+        pnp_ransac: run PnP inside RANSAC (solvePnPRansac) before refining.
+        planar_tol_m: PnP uses IPPE when all points lie within this of a plane [m].
+    """
+
+    ransac_px: float = 3.0
+    max_speed_mps: float = 15.0
+    gate_slack_m: float = 0.5
+    gate_reset_frames: int = 10
+    min_spread_m: float = 0.05
+    min_aspect: float = 0.02
+    pnp_ransac: bool = True
+    planar_tol_m: float = 1e-3
+
+
+@dataclass(frozen=True)
+class FramePose:
+    """One frame's per-frame pose, or why there is none.
+
+    Attributes:
+        frame: frame index.
+        stamp_ns: frame time [ns].
+        world_T_cam: (4, 4) camera pose in the world, or None.
+        reason: "" when posed, else why not (one of the REASON_* strings).
+        signs_used: number of distinct map signs that went into the solve.
+        inlier_codes: codes of the signs kept (RANSAC inliers).
+        rms_px: RMS reprojection error of the inliers [px] (NaN without pose).
+    """
+
+    frame: int
+    stamp_ns: int
+    world_T_cam: np.ndarray | None
+    reason: str = ""
+    signs_used: int = 0
+    inlier_codes: tuple[str, ...] = field(default_factory=tuple)
+    rms_px: float = float("nan")
+
+
+@dataclass(frozen=True)
+class _Correspondences:
+    codes: list[str]  # one per point
+    names: list[str]
+    world: np.ndarray  # (N, 3)
+    px: np.ndarray  # (N, 2) undistorted pixels
+
+
+def _correspondences(
+    frame: FrameObservations, sign_map: SignMap, camera: CameraModel, all_keypoints: bool
+) -> _Correspondences:
+    """Undistorted image points matched to map points; codes absent from the map dropped."""
+    codes, names, world, raw = [], [], [], []
+    for obs in frame.signs:
+        sign = sign_map.sign(obs.code)
+        if sign is None:  # robustness rule 1: decoded codes absent from the map
+            continue
+        kw = sign.keypoints_world()
+        wanted = kw if all_keypoints else {"center": kw["center"]}
+        for name, X in wanted.items():
+            if name in obs.keypoints_px:
+                codes.append(obs.code)
+                names.append(name)
+                world.append(X)
+                raw.append(obs.keypoints_px[name])
+    world_a = np.asarray(world, dtype=float).reshape(-1, 3)
+    px = undistort_px(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
+    return _Correspondences(codes, names, world_a, px)
+
+
+def _degenerate(points: np.ndarray, s: PerFrameSettings) -> str:
+    """A reason when the points cannot fix a pose (one spot, collinear), else ""."""
+    centred = points - points.mean(axis=0)
+    sv = np.linalg.svd(centred, compute_uv=False) / np.sqrt(max(len(points), 1))
+    if sv[0] < s.min_spread_m:
+        return REASON_ONE_SPOT
+    if sv[1] < s.min_aspect * sv[0] or sv[1] < s.min_spread_m:
+        return REASON_COLLINEAR
+    return ""
+
+
+def _reproject_rms(camera: CameraModel, world_T_cam: np.ndarray, X: np.ndarray, px: np.ndarray):
+    cam_T_world = np.linalg.inv(world_T_cam)
+    Xc = X @ cam_T_world[:3, :3].T + cam_T_world[:3, 3]
+    uv = Xc[:, :2] / Xc[:, 2:3] * [camera.fx, camera.fy] + [camera.cx, camera.cy]
+    return float(np.sqrt(np.mean(np.sum((uv - px) ** 2, axis=1)))), Xc[:, 2]
+
+
+def _orthonormal(R: np.ndarray) -> np.ndarray:
+    U, _, Vt = np.linalg.svd(R)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def _pose_from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """world_T_cam from x_cam = R X + t; Eq. (13): C = -R^T t."""
+    T = np.eye(4)
+    T[:3, :3] = R.T
+    T[:3, 3] = -R.T @ t
+    return T
+
+
+def pose_from_homography(
+    world_points: np.ndarray, normalised_px: np.ndarray, ransac_thresh: float
+) -> tuple[np.ndarray | None, np.ndarray, str]:
+    """The paper's Eqs. (7)-(13) on matched map and image points.
+
+    Args:
+        world_points: (N, 3) map points [m], N >= 4, roughly coplanar.
+        normalised_px: (N, 2) undistorted image points with K^-1 applied.
+        ransac_thresh: RANSAC reprojection threshold in normalised units.
+
+    Returns:
+        (world_T_cam or None, (N,) inlier mask, reason).
+    """
+    M = np.asarray(world_points, dtype=float)
+    m_c = M.mean(axis=0)  # step (1)
+    M_t = (M - m_c).T @ (M - m_c)  # Eq. (7)
+    _, _, V = np.linalg.svd(M_t)  # Eq. (8): M_t = U W V (numpy's vh is the paper's V)
+    R_t = V
+    if np.linalg.det(R_t) < 0:  # fix-up: make R_t a rotation so that R below is one
+        R_t = R_t * np.array([1.0, 1.0, -1.0])[:, None]
+    # Eq. (9) fix-up: with column vectors T_t = -R_t m_c (the paper writes -m_c R_t
+    # for row vectors), so M_xy = R_t X + T_t has its third coordinate ~ 0.
+    T_t = -R_t @ m_c
+    M_xy = M @ R_t.T + T_t
+    H, mask = cv2.findHomography(
+        M_xy[:, :2].reshape(-1, 1, 2),
+        np.asarray(normalised_px, dtype=float).reshape(-1, 1, 2),
+        cv2.RANSAC,
+        ransac_thresh,
+        maxIters=2000,
+        confidence=0.999,
+    )  # step (4), Eq. (10): H = [h1 h2 t']
+    if H is None or not np.all(np.isfinite(H)):
+        return None, np.zeros(len(M), bool), REASON_HOMOGRAPHY
+    inliers = mask.reshape(-1).astype(bool)
+    if inliers.sum() < 4:
+        return None, inliers, REASON_RANSAC
+    # Sign ambiguity: H is defined up to scale, including -1. The plane origin
+    # (the centroid, at t') must be in front of the camera: t'_z > 0.
+    if H[2, 2] < 0:
+        H = -H
+    h1, h2, tp = H[:, 0], H[:, 1], H[:, 2]
+    n1, n2 = np.linalg.norm(h1), np.linalg.norm(h2)
+    # Eq. (11). Fix-up: the scale of t' is the mean column norm, (|h1| + |h2|) / 2;
+    # the paper's divisor |h1| + |h2| would halve the distance.
+    h1, h2 = h1 / n1, h2 / n2
+    tp = tp / ((n1 + n2) / 2.0)
+    h3 = np.cross(h1, h2)
+    # Fix-up: with noise h1 and h2 are not orthogonal; take the nearest rotation.
+    R_plane = _orthonormal(np.stack([h1, h2, h3], axis=1))
+    R = R_plane @ R_t  # Eq. (12)
+    t = R_plane @ T_t + tp
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+        return None, inliers, REASON_NONFINITE
+    return _pose_from_rt(R, t), inliers, ""
+
+
+class BaselineTracker:
+    """The paper's per-frame positioning with its three robustness rules.
+
+    Holds the previous accepted position for the speed gate (rule 3); feed
+    frames in time order with ``solve``.
+    """
+
+    def __init__(self, sign_map: SignMap, camera: CameraModel, settings: PerFrameSettings):
+        self.sign_map = sign_map
+        self.camera = camera
+        self.settings = settings
+        self._prev_pos: np.ndarray | None = None
+        self._prev_stamp_ns = 0
+        self._rejections = 0
+
+    def solve(self, frame: FrameObservations) -> FramePose:
+        pose = solve_frame_baseline(frame, self.sign_map, self.camera, self.settings)
+        if pose.world_T_cam is None:
+            return pose
+        s = self.settings
+        if s.max_speed_mps > 0 and self._prev_pos is not None:
+            dt = abs(frame.stamp_ns - self._prev_stamp_ns) * 1e-9
+            jump = float(np.linalg.norm(pose.world_T_cam[:3, 3] - self._prev_pos))
+            if (
+                jump > s.max_speed_mps * dt + s.gate_slack_m
+                and self._rejections < s.gate_reset_frames
+            ):
+                self._rejections += 1
+                return FramePose(
+                    frame.frame,
+                    frame.stamp_ns,
+                    None,
+                    REASON_SPEED,
+                    pose.signs_used,
+                    pose.inlier_codes,
+                )
+        self._rejections = 0
+        self._prev_pos = pose.world_T_cam[:3, 3].copy()
+        self._prev_stamp_ns = frame.stamp_ns
+        return pose
+
+
+def solve_frame_baseline(
+    frame: FrameObservations,
+    sign_map: SignMap,
+    camera: CameraModel,
+    settings: PerFrameSettings | None = None,
+) -> FramePose:
+    """The paper's method on one frame (sign centres only; no speed gate, see BaselineTracker)."""
+    s = settings or PerFrameSettings()
+    c = _correspondences(frame, sign_map, camera, all_keypoints=False)
+    distinct = sorted(set(c.codes))
+    if len(distinct) < 4:
+        return FramePose(frame.frame, frame.stamp_ns, None, REASON_FEW_SIGNS, len(distinct))
+    reason = _degenerate(c.world, s)
+    if reason:
+        return FramePose(frame.frame, frame.stamp_ns, None, reason, len(distinct))
+    normalised = (c.px - [camera.cx, camera.cy]) / [camera.fx, camera.fy]  # K^-1 applied
+    T, inliers, reason = pose_from_homography(c.world, normalised, s.ransac_px / camera.fx)
+    if T is None:
+        return FramePose(frame.frame, frame.stamp_ns, None, reason, len(distinct))
+    used = tuple(sorted({code for code, ok in zip(c.codes, inliers, strict=True) if ok}))
+    rms, depth = _reproject_rms(camera, T, c.world[inliers], c.px[inliers])
+    if np.any(depth <= 0):
+        return FramePose(frame.frame, frame.stamp_ns, None, REASON_BEHIND, len(used), used)
+    return FramePose(frame.frame, frame.stamp_ns, T, "", len(used), used, rms)
+
+
+def solve_frame_pnp(
+    frame_obs: FrameObservations,
+    sign_map: SignMap,
+    camera: CameraModel,
+    prior_world_T_cam: np.ndarray | None = None,
+    settings: PerFrameSettings | None = None,
+) -> FramePose:
+    """PnP on one frame with every keypoint the map orients (causal; for tracking too).
+
+    SQPnP for general point sets, IPPE when the points are planar, then
+    Levenberg-Marquardt refinement (``cv2.solvePnPRefineLM``). With
+    ``prior_world_T_cam`` (e.g. the previous frame's pose) an iterative solve
+    from the prior is also tried and the lower reprojection error wins.
+
+    Args:
+        frame_obs: the frame's observations (raw pixels).
+        sign_map: the map.
+        camera: the camera.
+        prior_world_T_cam: (4, 4) optional initial guess.
+        settings: solver settings.
+
+    Returns:
+        The FramePose (``world_T_cam`` None with a reason on failure).
+    """
+    s = settings or PerFrameSettings()
+    f = frame_obs
+    c = _correspondences(f, sign_map, camera, all_keypoints=True)
+    distinct = sorted(set(c.codes))
+    if len(c.world) < 4:
+        return FramePose(f.frame, f.stamp_ns, None, REASON_FEW_POINTS, len(distinct))
+    reason = _degenerate(c.world, s)
+    if reason:
+        return FramePose(f.frame, f.stamp_ns, None, reason, len(distinct))
+    K = camera.K.astype(float)
+    dist = np.zeros(5)
+    X = c.world.reshape(-1, 1, 3)
+    x = c.px.reshape(-1, 1, 2)
+    centred = c.world - c.world.mean(axis=0)
+    planar = np.linalg.svd(centred, compute_uv=False)[2] / np.sqrt(len(c.world)) < s.planar_tol_m
+    inliers = np.ones(len(c.world), bool)
+    candidates: list[tuple[np.ndarray, np.ndarray]] = []
+    try:
+        if s.pnp_ransac and len(c.world) >= 6:
+            ok, rvec, tvec, idx = cv2.solvePnPRansac(
+                X, x, K, dist, reprojectionError=s.ransac_px, flags=cv2.SOLVEPNP_SQPNP
+            )
+            if ok and idx is not None and len(idx) >= 4:
+                inliers = np.zeros(len(c.world), bool)
+                inliers[idx.reshape(-1)] = True
+                candidates.append((rvec, tvec))
+        if not candidates:
+            if planar:
+                n, rvecs, tvecs, _ = cv2.solvePnPGeneric(X, x, K, dist, flags=cv2.SOLVEPNP_IPPE)
+                candidates += list(zip(rvecs, tvecs, strict=False))[:n]
+            else:
+                ok, rvec, tvec = cv2.solvePnP(X, x, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+                if ok:
+                    candidates.append((rvec, tvec))
+        if prior_world_T_cam is not None:
+            cam_T_world = np.linalg.inv(prior_world_T_cam)
+            rvec0, _ = cv2.Rodrigues(cam_T_world[:3, :3])
+            tvec0 = cam_T_world[:3, 3].reshape(3, 1).copy()
+            ok, rvec, tvec = cv2.solvePnP(
+                X, x, K, dist, rvec0.copy(), tvec0, True, flags=cv2.SOLVEPNP_ITERATIVE
+            )
+            if ok:
+                candidates.append((rvec, tvec))
+    except cv2.error:
+        candidates = []
+    best = None
+    for rvec, tvec in candidates:
+        rvec = np.asarray(rvec, dtype=float).reshape(3, 1).copy()
+        tvec = np.asarray(tvec, dtype=float).reshape(3, 1).copy()
+        with contextlib.suppress(cv2.error):
+            rvec, tvec = cv2.solvePnPRefineLM(X[inliers], x[inliers], K, dist, rvec, tvec)
+        if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            continue
+        R, _ = cv2.Rodrigues(rvec)
+        T = _pose_from_rt(R, tvec.reshape(3))
+        rms, depth = _reproject_rms(camera, T, c.world[inliers], c.px[inliers])
+        if np.any(depth <= 0) or not np.isfinite(rms):
+            continue
+        if best is None or rms < best[1]:
+            best = (T, rms)
+    if best is None:
+        return FramePose(f.frame, f.stamp_ns, None, REASON_PNP, len(distinct))
+    used = tuple(sorted({code for code, ok in zip(c.codes, inliers, strict=True) if ok}))
+    return FramePose(f.frame, f.stamp_ns, best[0], "", len(used), used, best[1])
+
+
+def run_per_frame(
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    method: str,
+    settings: PerFrameSettings | None = None,
+    progress: bool = False,
+) -> list[FramePose]:
+    """Run ``"baseline"`` (with the speed gate) or ``"pnp"`` (chained priors) over a flight."""
+    from tqdm import tqdm
+
+    s = settings or PerFrameSettings()
+    out: list[FramePose] = []
+    it = tqdm(frames, desc=method, unit="frame", disable=not progress, leave=False)
+    if method == "baseline":
+        tracker = BaselineTracker(sign_map, camera, s)
+        out = [tracker.solve(f) for f in it]
+    elif method == "pnp":
+        prior = None
+        for f in it:
+            p = solve_frame_pnp(f, sign_map, camera, prior, s)
+            if p.world_T_cam is not None:
+                prior = p.world_T_cam
+            out.append(p)
+    else:
+        raise ValueError(f"unknown per-frame method {method!r}")
+    return out

@@ -1,0 +1,235 @@
+"""The estimate output folder: ``<method>.tum``, ``trajectory.csv`` and ``report.json``.
+
+This is the one module that reads and writes ``trajectory.csv`` and
+``report.json`` (TUM goes through ``estimator.tum``). Every file is written
+atomically.
+
+trajectory.csv: one row per frame and method, header
+``method,frame,t,x,y,z,qw,qx,qy,qz,sigma_x,sigma_y,sigma_z,signs_used,status``;
+t in seconds, position of the camera centre in the world [m], rotation
+world_R_cam as a unit quaternion (w first); empty pose/sigma fields where the
+method has no pose or no sigma (never NaN).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from estimator.estimate import EstimateResult, MethodEstimate
+from estimator.metrics import compute_metrics, format_table
+from estimator.tum import Trajectory, quat_xyzw_from_rotation, read_tum, write_tum
+from signpose.errors import InputError
+from signpose.fileio import atomic_write, ensure_dir
+
+CSV_HEADER = (
+    "method",
+    "frame",
+    "t",
+    "x",
+    "y",
+    "z",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    "sigma_x",
+    "sigma_y",
+    "sigma_z",
+    "signs_used",
+    "status",
+)
+MAX_LISTED_OUTLIERS = 2000
+
+
+def method_trajectory(m: MethodEstimate) -> Trajectory:
+    """The method's posed frames as a Trajectory."""
+    return Trajectory.from_matrices(m.stamps_s[m.valid], m.world_T_cam[m.valid])
+
+
+def _versions() -> dict:
+    out = {"python": platform.python_version()}
+    for mod in ("signpose", "gtsam", "cv2", "numpy"):
+        try:
+            out[mod] = str(__import__(mod).__version__)
+        except (ImportError, AttributeError):
+            out[mod] = "unknown"
+    return out
+
+
+def _clean(x):
+    """JSON-safe: NaN/inf -> None, numpy scalars -> Python."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    return x
+
+
+def _csv_text(result: EstimateResult) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_HEADER)
+    for name, m in result.methods.items():
+        quats = quat_xyzw_from_rotation(m.world_T_cam[:, :3, :3])
+        for i in range(len(m.stamps_s)):
+            row = [name, int(result.frames[i]), f"{m.stamps_s[i]:.9f}"]
+            if m.valid[i]:
+                p = m.world_T_cam[i, :3, 3]
+                q = quats[i]
+                row += [f"{v:.6f}" for v in p] + [f"{v:.9f}" for v in (q[3], q[0], q[1], q[2])]
+            else:
+                row += [""] * 7
+            sig = m.sigma_xyz[i]
+            row += [f"{v:.6f}" if (m.valid[i] and np.isfinite(v)) else "" for v in sig]
+            row += [int(m.signs_used[i]), m.status[i]]
+            w.writerow(row)
+    return buf.getvalue()
+
+
+def report_dict(result: EstimateResult) -> dict:
+    """The content of report.json (before any metrics are added)."""
+    n = len(result.frames)
+    seen = result.signs_seen > 0
+    coverage = {}
+    for name, m in result.methods.items():
+        coverage[name] = {
+            "frames": n,
+            "posed": int(m.valid.sum()),
+            "coverage": float(m.valid.mean()) if n else 0.0,
+            "coverage_of_frames_with_signs": float(m.valid[seen].mean()) if seen.any() else None,
+            "bridged": int(sum(s.startswith("bridged") for s in m.status)),
+        }
+    o = result.outliers.to_dict()
+    o["n_downweighted"] = len(o["downweighted"])
+    o["downweighted"] = sorted(o["downweighted"], key=lambda d: -d["residual_px"])[
+        :MAX_LISTED_OUTLIERS
+    ]
+    return _clean(
+        {
+            "settings": result.settings.to_dict(),
+            "versions": _versions(),
+            "frames": n,
+            "frames_with_signs": int(seen.sum()),
+            "coverage": coverage,
+            "timing_s": result.timing_s,
+            "outliers": o,
+        }
+    )
+
+
+def write_json(path: Path, data: dict) -> None:
+    with atomic_write(path) as f:
+        json.dump(_clean(data), f, indent=2)
+        f.write("\n")
+
+
+def write_outputs(out_dir: str | Path, result: EstimateResult) -> list[Path]:
+    """Write ``<method>.tum`` for every method, trajectory.csv and report.json.
+
+    TUM files hold only the frames with a pose. Returns the paths written.
+    """
+    out = ensure_dir(out_dir)
+    written = []
+    for name, m in result.methods.items():
+        p = out / f"{name}.tum"
+        write_tum(p, method_trajectory(m))
+        written.append(p)
+    p = out / "trajectory.csv"
+    with atomic_write(p) as f:
+        f.write(_csv_text(result))
+    written.append(p)
+    p = out / "report.json"
+    write_json(p, report_dict(result))
+    written.append(p)
+    return written
+
+
+def read_trajectory_csv(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
+    """trajectory.csv back as method -> column -> array (empty fields -> NaN)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or tuple(rows[0]) != CSV_HEADER:
+        raise InputError(f"{p}: not a signpose trajectory.csv (wrong header)")
+    out: dict[str, dict[str, list]] = {}
+    for lineno, r in enumerate(rows[1:], start=2):
+        if len(r) != len(CSV_HEADER):
+            raise InputError(f"{p}: line {lineno}: expected {len(CSV_HEADER)} fields")
+        cols = out.setdefault(r[0], {k: [] for k in CSV_HEADER[1:]})
+        for k, v in zip(CSV_HEADER[1:], r[1:], strict=True):
+            cols[k].append(v)
+    result: dict[str, dict[str, np.ndarray]] = {}
+    for name, cols in out.items():
+        d: dict[str, np.ndarray] = {}
+        for k, vals in cols.items():
+            if k == "status":
+                d[k] = np.array(vals, dtype=object)
+            elif k in ("frame", "signs_used"):
+                d[k] = np.array([int(v) for v in vals], dtype=np.int64)
+            else:
+                d[k] = np.array([float(v) if v else np.nan for v in vals])
+        result[name] = d
+    return result
+
+
+def read_report(path: str | Path) -> dict:
+    p = Path(path)
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{p}: report.json not found; run 'signpose estimate' first") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{p}: cannot read report ({exc})") from None
+
+
+def method_files(out_dir: str | Path) -> dict[str, Path]:
+    """method name -> TUM file of an estimate folder (known methods first)."""
+    d = Path(out_dir)
+    if not d.is_dir():
+        raise InputError(f"{d}: not a folder; pass the --out folder of 'signpose estimate'")
+    files = {p.stem: p for p in sorted(d.glob("*.tum")) if p.stem != "groundtruth"}
+    order = ["baseline", "pnp", "smoothed", "causal"]
+    ranked = {k: files[k] for k in order if k in files}
+    ranked.update({k: v for k, v in files.items() if k not in ranked})
+    if not ranked:
+        raise InputError(f"{d}: no <method>.tum files; run 'signpose estimate --out {d}' first")
+    return ranked
+
+
+def compare_dir(out_dir: str | Path, gt_path: str | Path) -> dict[str, dict]:
+    """Metrics of every method in ``out_dir`` against ``gt_path``; added to report.json.
+
+    Returns:
+        method -> Metrics.to_dict(); report.json gets a ``"metrics"`` entry
+        (rewritten atomically; created if missing).
+    """
+    gt = read_tum(gt_path)
+    metrics = {name: compute_metrics(read_tum(p), gt) for name, p in method_files(out_dir).items()}
+    out = {name: m.to_dict() for name, m in metrics.items()}
+    report_path = Path(out_dir) / "report.json"
+    report = read_report(report_path) if report_path.exists() else {}
+    report["metrics"] = {
+        "groundtruth": str(gt_path),
+        "methods": out,
+        "table": format_table(metrics),
+    }
+    write_json(report_path, report)
+    return out
+
+
+def metrics_table(out_dir: str | Path) -> str:
+    """The table stored by the last ``compare_dir`` call."""
+    return read_report(Path(out_dir) / "report.json")["metrics"]["table"]
