@@ -21,7 +21,8 @@ import time
 from pathlib import Path
 
 STAGES = (
-    ("decode_video", "decode video"),
+    ("decode_video", "decode video (reader thread)"),
+    ("wait_video", "  of which the loop waited"),
     ("detect", "detect (cascade + merge)"),
     ("decode", "decode signs"),
     ("track", "track (per-frame PnP)"),
@@ -94,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     for key, label in STAGES:
         v = t.get(key, 0.0)
         print(f"{label:32s} {v:10.2f} {1000 * v / max(n, 1):9.2f} {100 * v / wall:6.1f}%")
-    print(f"{'total':32s} {wall:10.2f} {1000 * wall / max(n, 1):9.2f} {100.0:6.1f}%")
+    print(f"{'total (wall)':32s} {wall:10.2f} {1000 * wall / max(n, 1):9.2f} {100.0:6.1f}%")
+    print("(video decoding runs in a reader thread, overlapping detection; shares of wall time)")
     print("coverage: " + ", ".join(f"{k} {100 * v:.1f}%" for k, v in result.coverage.items()))
     print(
         "position RMSE: " + ", ".join(f"{k} {v:.3f} m" for k, v in result.position_rmse_m.items())

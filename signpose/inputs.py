@@ -373,3 +373,78 @@ def check_source_camera(source_name: str, camera: CameraModel, image_size: tuple
     from estimator.camera import check_image_size
 
     check_image_size(camera, image_size[0], image_size[1], source_name)
+
+
+# --------------------------------------------------------------------------- prefetch
+
+
+@dataclass(frozen=True)
+class PrefetchedFrame:
+    """A frame read ahead by ``prefetch``.
+
+    Attributes:
+        frame: the frame.
+        gray: (H, W) uint8 gray image of it.
+        read_s: time the reader thread spent reading/decoding and converting it [s].
+    """
+
+    frame: Frame
+    gray: np.ndarray
+    read_s: float
+
+
+def prefetch(source: FrameSource, depth: int = 4) -> Iterator[PrefetchedFrame]:
+    """Read and decode ``source`` in a background thread, ``depth`` frames ahead.
+
+    Video decoding and colour conversion release the GIL, so on two cores they
+    overlap with the detector. Errors of the source (InputError ...) are
+    raised here, in the consumer; closing the generator (or Ctrl-C in the
+    consumer) stops the reader.
+    """
+    import queue
+    import threading
+    import time
+
+    q: queue.Queue = queue.Queue(maxsize=max(1, depth))
+    stop = threading.Event()
+    done = object()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def reader() -> None:
+        try:
+            it = iter(source)
+            while not stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    frame = next(it)
+                except StopIteration:
+                    break
+                gray = frame.gray()
+                if not put(PrefetchedFrame(frame, gray, time.perf_counter() - t0)):
+                    return
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            put(exc)
+            return
+        put(done)
+
+    thread = threading.Thread(target=reader, name="signpose-reader", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item = q.get()
+            if item is done:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        thread.join(timeout=5.0)

@@ -35,7 +35,7 @@ from frontend.observations import FrameObservations, append_observation
 from maps.loader import SignMap
 from signpose.errors import InputError, OutputError
 from signpose.fileio import atomic_write, ensure_dir
-from signpose.inputs import FrameSource, open_source
+from signpose.inputs import FrameSource, open_source, prefetch
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +66,7 @@ class ObserveSettings:
             predicted sign that is not found makes the detector search the
             full frame).
         cascade_path: detector cascade XML; "" = the bundled one.
+        prefetch: read and decode the input in a background thread.
     """
 
     codes: tuple[str, ...] | None = None
@@ -74,6 +75,7 @@ class ObserveSettings:
     max_track_rms_px: float = 4.0
     prediction_margin: float = -0.6
     cascade_path: str = ""
+    prefetch: bool = True
 
 
 @dataclass(frozen=True)
@@ -82,7 +84,9 @@ class ObserveResult:
 
     Attributes:
         frames: every processed frame's observations, in order.
-        timing_s: stage -> seconds (decode_video, detect, decode, track).
+        timing_s: stage -> seconds: decode_video (reader thread's time, which
+            overlaps the rest), wait_video (time the frame loop waited for it),
+            detect, decode, track.
         problems: one line per reading problem (where a truncated input stopped).
         tracked_frames: frames searched only around predictions.
         full_frames: frames searched over the whole image.
@@ -249,6 +253,21 @@ def _extrapolate(prev: np.ndarray, prev2: np.ndarray | None) -> np.ndarray:
     return out
 
 
+def _no_prefetch(source: FrameSource):
+    from signpose.inputs import PrefetchedFrame
+
+    for frame in source:
+        t0 = time.perf_counter()
+        gray = frame.gray()
+        yield PrefetchedFrame(frame, gray, time.perf_counter() - t0)
+
+
+def _close(it) -> None:
+    close = getattr(it, "close", None)
+    if close is not None:
+        close()
+
+
 def _detect_full(det: Any, gray: np.ndarray, codes: tuple[str, ...], mode: str):
     try:
         return det.detect(gray, codes, mode=mode)
@@ -319,24 +338,27 @@ def observe(
     if tracking:
         from estimator.perframe import solve_frame_pnp
     det = detector  # made after the first frame passed the size check
-    timing = dict.fromkeys(("decode_video", "detect", "decode", "track"), 0.0)
+    timing = dict.fromkeys(("decode_video", "wait_video", "detect", "decode", "track"), 0.0)
     stream = ObservationStream(out_path) if out_path is not None else None
     frames: list[FrameObservations] = []
     tracked = full = 0
     prev_T = prev2_T = None
     size_checked = False
     bar = tqdm(total=source.length, desc="observe", unit="frame", disable=not progress)
-    frame_iter: Iterator = iter(source)
+    frame_iter: Iterator = prefetch(source) if s.prefetch else _no_prefetch(source)
     try:
         while True:
             t0 = time.perf_counter()
             try:
-                frame = next(frame_iter)
+                item = next(frame_iter)
             except StopIteration:
                 break
-            gray = frame.gray()
+            frame, gray = item.frame, item.gray
             t1 = time.perf_counter()
-            timing["decode_video"] += t1 - t0
+            # Reading runs ahead in its own thread: its cost is the reader's time,
+            # the wall-clock wait for it is part of "wait_video".
+            timing["decode_video"] += item.read_s
+            timing["wait_video"] += t1 - t0
             if not size_checked:
                 if camera is not None:
                     check_image_size(camera, *frame.image_size, str(source.path))
@@ -376,6 +398,7 @@ def observe(
             bar.update(1)
     except KeyboardInterrupt:
         bar.close()
+        _close(frame_iter)
         if stream is not None:
             kept = stream.finish_partial()
             if kept is not None:
@@ -383,6 +406,7 @@ def observe(
         raise
     except BaseException:
         bar.close()
+        _close(frame_iter)
         if stream is not None:
             stream.abort()
         raise

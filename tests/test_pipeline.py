@@ -91,7 +91,7 @@ def test_observe_streams_and_tracks(tiny_flight, tmp_path):
     assert det.calls[1:].count("track") >= 12
     assert result.tracked_frames == det.calls.count("track")
     assert [p.name for p in tmp_path.iterdir()] == ["obs.jsonl"]  # no temp file left
-    assert set(result.timing_s) == {"decode_video", "detect", "decode", "track"}
+    assert set(result.timing_s) == {"decode_video", "wait_video", "detect", "decode", "track"}
 
 
 def test_predictions_match_the_truth(tiny_flight):
