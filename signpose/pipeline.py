@@ -15,8 +15,6 @@ truth), with the time split by stage (the paper's Table 5) in ``report.json``.
 from __future__ import annotations
 
 import contextlib
-import importlib
-import json
 import logging
 import math
 import os
@@ -34,7 +32,7 @@ from estimator.camera import CameraModel, check_image_size, pixel_from_world_poi
 from frontend.observations import FrameObservations, append_observation
 from maps.loader import SignMap
 from signpose.errors import InputError, OutputError
-from signpose.fileio import atomic_write, ensure_dir
+from signpose.fileio import ensure_dir
 from signpose.inputs import FrameSource, open_source, prefetch
 
 log = logging.getLogger(__name__)
@@ -541,7 +539,7 @@ def run(
 
     t0 = time.perf_counter()
     trajs, sigmas = _trajectories(estimate)
-    files += _write_estimator_outputs(out, estimate, trajs)
+    files += _write_estimator_outputs(out, estimate)
     if s.plots:
         from signpose.plots import PlotData, write_plots
 
@@ -562,8 +560,7 @@ def run(
         files.append(out / RESULT_MCAP_NAME)
     comparison, table = None, ""
     if gt_path is not None:
-        comparison, table, written = _compare(out, Path(gt_path))
-        files += written
+        comparison, table = _compare(out, Path(gt_path))
     t_outputs = time.perf_counter() - t0
     total = time.perf_counter() - t_start
     timing = dict(obs.timing_s)
@@ -573,8 +570,11 @@ def run(
     n = len(obs.frames)
     coverage = {name: float(m.coverage) for name, m in estimate.methods.items()}
     rmse = {} if gt is None else {k: position_rmse(v, gt) for k, v in trajs.items()}
+    for name, metrics in (comparison or {}).items():
+        if isinstance(metrics, dict) and metrics.get("ate_rmse") is not None:
+            rmse[name] = float(metrics["ate_rmse"])
     fps_run = n / total if total > 0 else float("nan")
-    report = {
+    section = {
         "input": str(source.path),
         "input_kind": source.kind,
         "frames": n,
@@ -586,19 +586,12 @@ def run(
         "timing_ms_per_frame": {
             k: round(1000 * v / max(n, 1), 3) for k, v in timing.items() if k != "total"
         },
-        "estimator_timing_s": {k: round(float(v), 4) for k, v in estimate.timing_s.items()},
         "frames_per_second": round(fps_run, 3),
-        "comparison": comparison,
-        "settings": {
-            "observe": asdict(s.observe),
-            "with_images": s.with_images,
-            "estimator": _settings_dict(est_settings),
-        },
+        "settings": {"observe": asdict(s.observe), "with_images": s.with_images},
     }
-    with atomic_write(out / REPORT_NAME) as f:
-        json.dump(report, f, indent=2, default=_json_default)
-        f.write("\n")
-    files.append(out / REPORT_NAME)
+    _add_to_report(out / REPORT_NAME, "pipeline", section)
+    if out / REPORT_NAME not in files:
+        files.append(out / REPORT_NAME)
     return RunResult(
         out,
         n,
@@ -621,83 +614,27 @@ def position_rmse(traj, gt) -> float:
     return float(np.sqrt(np.mean(dp**2))) if len(dp) else float("nan")
 
 
-def _settings_dict(settings: Any) -> Any:
-    to_dict = getattr(settings, "to_dict", None)
-    if callable(to_dict):
-        return to_dict()
-    with contextlib.suppress(TypeError):
-        return asdict(settings)
-    return str(settings)
+def _write_estimator_outputs(out: Path, estimate) -> list[Path]:
+    """The estimator's files: ``<method>.tum``, ``trajectory.csv``, ``report.json``."""
+    from estimator.results_io import write_outputs
+
+    return [Path(p) for p in write_outputs(out, estimate)]
 
 
-def _json_default(value: Any):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    return str(value)
+def _compare(out: Path, gt_path: Path) -> tuple[dict, str]:
+    """The estimator's comparison (added to report.json): (method -> metrics, table)."""
+    from estimator.results_io import compare_dir, metrics_table
+
+    return compare_dir(out, gt_path), metrics_table(out)
 
 
-def _write_estimator_outputs(out: Path, estimate, trajs: dict) -> list[Path]:
-    """The estimator's own files (``write_outputs`` of the estimator package).
+def _add_to_report(path: Path, key: str, section: dict) -> None:
+    """Add ``section`` under ``key`` to the estimator's report.json (its module writes it)."""
+    from estimator.results_io import read_report, write_json
 
-    Until the estimator ships its writer, each method's valid poses go to
-    ``<method>.tum`` (``estimator.tum``).
-    """
-    write_outputs = None
-    for module in ("estimator.results_io", "estimator.estimate", "estimator"):
-        with contextlib.suppress(ImportError):
-            write_outputs = getattr(importlib.import_module(module), "write_outputs", None)
-        if write_outputs is not None:
-            break
-    if write_outputs is None:
-        from estimator.tum import write_tum
-
-        written = []
-        for name, traj in trajs.items():
-            write_tum(out / f"{name}.tum", _valid_only(traj))
-            written.append(out / f"{name}.tum")
-        return written
-    before = set(out.iterdir())
-    result = write_outputs(out, estimate)
-    if isinstance(result, list | tuple) and all(isinstance(p, str | Path) for p in result):
-        return [Path(p) for p in result]
-    return sorted(set(out.iterdir()) - before)
-
-
-def _compare(out: Path, gt_path: Path) -> tuple[dict | None, str, list[Path]]:
-    """Run the estimator's comparison on ``out``; (summary, printable table, files)."""
-    try:
-        from estimator.compare import compare_dir
-    except ImportError:
-        log.warning("estimator.compare is not available; skipping the comparison")
-        return None, "", []
-    before = set(out.iterdir())
-    result = compare_dir(out, gt_path)
-    written = sorted(set(out.iterdir()) - before)
-    table = ""
-    for name in ("table", "format_table", "to_table"):
-        value = getattr(result, name, None)
-        if callable(value):
-            value = value()
-        if isinstance(value, str):
-            table = value
-            break
-    summary = None
-    for name in ("to_dict", "summary"):
-        value = getattr(result, name, None)
-        if callable(value):
-            value = value()
-        if isinstance(value, dict):
-            summary = value
-            break
-    if summary is None and isinstance(result, dict):
-        summary = result
-    if isinstance(result, tuple) and len(result) == 2 and isinstance(result[1], str):
-        summary, table = (result[0] if isinstance(result[0], dict) else None), result[1]
-    return summary, table, written
+    report = read_report(path) if path.exists() else {}
+    report[key] = section
+    write_json(path, report)
 
 
 # --------------------------------------------------------------------------- demo

@@ -82,8 +82,8 @@ def test_truncated_video(flight, replay, tmp_path, capsys):
     assert 0 < n < 12
     assert f"the {n} readable frames were processed" in line
     report = json.loads((out / "report.json").read_text())
-    assert report["frames"] == n
-    assert "video stopped at frame" in report["problems"][0]
+    assert report["pipeline"]["frames"] == n
+    assert "video stopped at frame" in report["pipeline"]["problems"][0]
 
 
 def test_truncated_mcap(tmp_path, replay, flight, capsys):

@@ -150,9 +150,11 @@ def test_run_writes_everything(tiny_flight, tmp_path):
     # Truth keypoints: the per-frame PnP is exact up to the simulator's rounding.
     assert result.position_rmse_m["pnp"] < 0.05
     report = json.loads((out / "report.json").read_text())
-    assert report["frames"] == 16
+    assert report["pipeline"]["frames"] == 16
     for stage in ("decode_video", "detect", "decode", "track", "estimate", "outputs", "total"):
-        assert report["timing_s"][stage] >= 0.0
+        assert report["pipeline"]["timing_s"][stage] >= 0.0
+    assert set(report["metrics"]["methods"]) >= {"baseline", "pnp", "smoothed"}  # compare ran
+    assert "smoothed" in result.comparison_table
     log = mcap_io.McapLog(out / "result.mcap")
     topics = {c.topic: c.message_count for c in log.channels}
     assert topics[mcap_io.IMAGE_TOPIC] == 16
