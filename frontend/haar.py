@@ -277,45 +277,64 @@ class TrainSettings:
     feature_block: int = 2000
 
 
-def best_stumps(
-    order: np.ndarray,
-    sorted_vals: np.ndarray,
-    tie: np.ndarray,
-    signed_w: np.ndarray,
-    total_pos: float,
-    total_neg: float,
-) -> tuple[int, float, int, float]:
-    """Lowest weighted-error single-feature stump over presorted values.
+class PresortedBlock:
+    """Feature values of a block of features, presorted once per stage.
 
-    With C = cumulative signed weight (positives +w, negatives -w) in value
-    order, a threshold after rank k that calls values below it positive errs
-    ``T+ - C_k``; calling them negative errs ``T- + C_k``.
-
-    Args:
-        order: (F, N) int sample indices sorting each feature's values.
+    Attributes:
+        order: (F, N) int32 sample indices sorting each feature's values.
         sorted_vals: (F, N) float32 the sorted values.
-        tie: (F, N - 1) bool, True where rank k and k + 1 have equal values
-            (no threshold fits between them).
-        signed_w: (N,) weights, positive for positives, negative for negatives.
-
-    Returns:
-        (feature row, threshold, polarity (+1: positive below), error).
+        cuts: flat indices ``f * N + k`` of the ranks k < N - 1 after which a
+            threshold fits (value k < value k + 1), feature by feature.
+        has_cut: (F,) False for features constant over all samples.
+        starts: offset of each feature's first cut in ``cuts`` (features with cuts).
     """
-    c = np.cumsum(signed_w[order[:, :-1]], axis=1)
-    hi = np.where(tie, -np.inf, c)
-    k_hi = hi.argmax(axis=1)
-    c[tie] = np.inf
-    k_lo = c.argmin(axis=1)
-    rows = np.arange(order.shape[0])
-    err_below = total_pos - hi[rows, k_hi]
-    err_above = total_neg + c[rows, k_lo]
-    f1, f2 = int(err_below.argmin()), int(err_above.argmin())
-    if err_below[f1] <= err_above[f2]:
-        f, k, pol, err = f1, k_hi[f1], 1, err_below[f1]
-    else:
-        f, k, pol, err = f2, k_lo[f2], -1, err_above[f2]
-    thr = 0.5 * (float(sorted_vals[f, k]) + float(sorted_vals[f, k + 1]))
-    return f, thr, pol, float(err)
+
+    def __init__(self, vals_t: np.ndarray) -> None:
+        f, n = vals_t.shape
+        self.order = np.argsort(vals_t, axis=1).astype(np.int32)
+        self.sorted_vals = np.take_along_axis(vals_t, self.order, axis=1)
+        ok = self.sorted_vals[:, :-1] < self.sorted_vals[:, 1:]
+        rows, ks = np.nonzero(ok)
+        self.cuts = (rows * n + ks).astype(np.int64 if f * n >= 2**31 else np.int32)
+        counts = ok.sum(axis=1)
+        self.has_cut = counts > 0
+        self.starts = np.concatenate([[0], np.cumsum(counts)[:-1]])[self.has_cut]
+        self._buf = np.empty((f, n), np.float32)
+
+    def best(
+        self, signed_w: np.ndarray, total_pos: float, total_neg: float
+    ) -> tuple[int, float, int, float]:
+        """Lowest weighted-error single-feature stump.
+
+        With C = cumulative signed weight (positives +w, negatives -w) in value
+        order, a threshold after rank k that calls values below it positive
+        errs ``T+ - C_k``; calling them negative errs ``T- + C_k``.
+
+        Args:
+            signed_w: (N,) float32 weights, + for positives, - for negatives.
+
+        Returns:
+            (feature row, threshold, polarity (+1: positive below), error).
+        """
+        c = self._buf
+        np.take(signed_w, self.order, out=c)
+        np.cumsum(c, axis=1, out=c)
+        at_cuts = c.ravel()[self.cuts]
+        err_below = np.full(c.shape[0], np.inf)
+        err_above = np.full(c.shape[0], np.inf)
+        if at_cuts.size:
+            err_below[self.has_cut] = total_pos - np.maximum.reduceat(at_cuts, self.starts)
+            err_above[self.has_cut] = total_neg + np.minimum.reduceat(at_cuts, self.starts)
+        f1, f2 = int(err_below.argmin()), int(err_above.argmin())
+        pol = 1 if err_below[f1] <= err_above[f2] else -1
+        f = f1 if pol == 1 else f2
+        row = c[f, :-1]
+        ok = self.sorted_vals[f, :-1] < self.sorted_vals[f, 1:]
+        cand = np.flatnonzero(ok)
+        k = int(cand[row[cand].argmax()] if pol == 1 else cand[row[cand].argmin()])
+        err = float(total_pos - row[k]) if pol == 1 else float(total_neg + row[k])
+        thr = 0.5 * (float(self.sorted_vals[f, k]) + float(self.sorted_vals[f, k + 1]))
+        return f, thr, pol, err
 
 
 def train_stage(
@@ -345,9 +364,10 @@ def train_stage(
     for b in range(0, len(features), settings.feature_block):
         blk = slice(b, b + settings.feature_block)
         vals_t[blk] = (ii @ weights[:, blk]).T * inv_nf[None, :]
-    order = np.argsort(vals_t, axis=1).astype(np.int32)
-    sorted_vals = np.take_along_axis(vals_t, order, axis=1)
-    tie = sorted_vals[:, :-1] >= sorted_vals[:, 1:]
+    blocks = [
+        PresortedBlock(vals_t[b : b + settings.feature_block])
+        for b in range(0, len(features), settings.feature_block)
+    ]
 
     # (2) w = 1/2l for positives, 1/2m for negatives.
     w = np.where(y, 1.0 / (2 * n_pos), 1.0 / (2 * n_neg))
@@ -360,13 +380,10 @@ def train_stage(
         signed = np.where(y, w, -w).astype(np.float32)
         total_pos, total_neg = float(w[y].sum()), float(w[~y].sum())
         best = (None, 0.0, 1, np.inf)
-        for b in range(0, len(features), settings.feature_block):
-            blk = slice(b, b + settings.feature_block)
-            f, thr, pol, err = best_stumps(
-                order[blk], sorted_vals[blk], tie[blk], signed, total_pos, total_neg
-            )
+        for j, blk in enumerate(blocks):
+            f, thr, pol, err = blk.best(signed, total_pos, total_neg)
             if err < best[3]:
-                best = (b + f, thr, pol, err)
+                best = (j * settings.feature_block + f, thr, pol, err)
         f, thr, pol, err = best
         err = min(max(err, 1e-10), 0.5 - 1e-10)
         alpha = 0.5 * math.log((1 - err) / err)  # (3)(4)
@@ -400,6 +417,7 @@ def train_cascade(
     rng: np.random.Generator,
     feature_pool: HaarFeatureSet | None = None,
     progress: Callable[[str], None] | None = None,
+    on_stage: Callable[[Cascade], None] | None = None,
 ) -> Cascade:
     """Train the attentional cascade stage by stage.
 
@@ -410,6 +428,7 @@ def train_cascade(
             the fraction of scanned windows it accepted.
         n_neg: negatives per stage.
         feature_pool: candidate features (default: all five shapes).
+        on_stage: called with the cascade after each new stage (checkpoints).
 
     Returns:
         The cascade (stops early when negatives become too rare to mine).
@@ -431,6 +450,8 @@ def train_cascade(
         idx = rng.choice(len(pool), size=min(n_feat, len(pool)), replace=False)
         stage, hit, fa = train_stage(pos, neg, pool.subset(np.sort(idx)), settings, progress)
         cascade = Cascade((*cascade.stages, stage), cascade.window_px)
+        if on_stage is not None:
+            on_stage(cascade)
         if progress is not None:
             progress(f"stage {s + 1}: {len(stage.stumps)} weak, hit {hit:.4f}, fa {fa:.3f}")
     return cascade
@@ -458,8 +479,18 @@ def _windows_scanned(h: int, w: int, scale_factor: float, window_px: int = WINDO
     return n
 
 
+def _clear_of(rects: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(N,) bool: windows (x, y, w, h) that touch none of ``boxes`` (K, 4)."""
+    if boxes.size == 0 or rects.size == 0:
+        return np.ones(rects.shape[0], bool)
+    r, b = rects[:, None, :].astype(float), boxes[None, :, :].astype(float)
+    ix = (r[..., 0] < b[..., 0] + b[..., 2]) & (b[..., 0] < r[..., 0] + r[..., 2])
+    iy = (r[..., 1] < b[..., 1] + b[..., 3]) & (b[..., 1] < r[..., 1] + r[..., 3])
+    return ~(ix & iy).any(axis=1)
+
+
 def make_miner(
-    images: Sequence[np.ndarray],
+    images: Sequence[np.ndarray | tuple[np.ndarray, np.ndarray]],
     max_windows: int,
     scale_range: tuple[float, float] = (0.15, 1.0),
     scale_factor: float = 1.2,
@@ -471,13 +502,21 @@ def make_miner(
     (raw windows, ``minNeighbors=0``) over the images at a random zoom, cut
     the accepted windows out and keep those the numpy cascade accepts too:
     the hard negatives a detector would report.
+
+    An image may come with the (K, 4) boxes (x, y, w, h) of signs in it (a
+    simulated frame): windows touching a sign are never taken.
     """
     import os
     import tempfile
 
     import cv2
 
-    imgs = [np.asarray(im, np.uint8) for im in images if min(im.shape[:2]) >= 2 * WINDOW_PX]
+    imgs, masks = [], []
+    for item in images:
+        im, boxes = item if isinstance(item, tuple) else (item, np.zeros((0, 4)))
+        if min(im.shape[:2]) >= 2 * WINDOW_PX:
+            imgs.append(np.asarray(im, np.uint8))
+            masks.append(np.asarray(boxes, float).reshape(-1, 4))
 
     def mine(cascade: Cascade, n: int, rng: np.random.Generator) -> tuple[np.ndarray, int]:
         from frontend.cascade_xml import write_cascade_xml
@@ -495,7 +534,8 @@ def make_miner(
             finally:
                 os.unlink(tmp)
         while n_found < n and tried < max_windows:
-            im = imgs[int(rng.integers(len(imgs)))]
+            pick = int(rng.integers(len(imgs)))
+            im, boxes = imgs[pick], masks[pick]
             lo = max(scale_range[0], 3 * WINDOW_PX / min(im.shape[:2]))
             zoom = math.exp(rng.uniform(math.log(lo), math.log(max(lo, scale_range[1]))))
             if rng.random() < 0.3:
@@ -510,7 +550,11 @@ def make_miner(
                         for y, x in zip(ys, xs, strict=True)
                     ]
                 )
-                keep = keep[cascade.accepts(keep)]  # OpenCV's contrast gate only
+                win = np.stack(
+                    [xs, ys, np.full_like(xs, WINDOW_PX), np.full_like(xs, WINDOW_PX)], 1
+                )
+                clear = _clear_of(win / zoom, boxes)
+                keep = keep[cascade.accepts(keep) & clear]  # OpenCV's contrast gate only
                 tried += per_image
                 n_accepted += keep.shape[0]
             else:
@@ -521,7 +565,10 @@ def make_miner(
                 if len(rects) == 0:
                     continue
                 rects = np.asarray(rects)
+                rects = rects[_clear_of(rects / zoom, boxes)]
                 n_raw = len(rects)
+                if n_raw == 0:
+                    continue
                 if len(rects) > 4 * per_image:
                     rects = rects[rng.choice(len(rects), 4 * per_image, replace=False)]
                 wins = np.stack(
@@ -703,14 +750,23 @@ def train_sign_cascade(
     settings: TrainSettings | None = None,
     progress: Callable[[str], None] | None = None,
     pos_progress: Callable[[int], None] | None = None,
+    scene_negatives: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+    on_stage: Callable[[Cascade], None] | None = None,
 ) -> Cascade:
     """The bundled detector's recipe: synthetic positives, mined background negatives.
 
     Everything is drawn from ``np.random.default_rng(seed)``.
+
+    Args:
+        scene_negatives: (grey image, (K, 4) sign boxes) pairs, e.g. simulated
+            frames; their sign-free regions are mined for negatives too.
     """
     settings = settings or TrainSettings()
     rng = np.random.default_rng(seed)
     positives = render_positives(n_pos, rng, progress=pos_progress)
-    images = background_images(rng)
+    images: list = list(background_images(rng))
+    images += list(scene_negatives)
     miner = make_miner(images, settings.max_mine_windows)
-    return train_cascade(positives, miner, n_neg, settings, rng, progress=progress)
+    return train_cascade(
+        positives, miner, n_neg, settings, rng, progress=progress, on_stage=on_stage
+    )

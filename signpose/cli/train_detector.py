@@ -22,13 +22,58 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", required=True, type=Path, help="output .xml")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--positives", type=int, default=4000, help="positive windows")
-    p.add_argument("--negatives", type=int, default=4000, help="negative windows per stage")
-    p.add_argument("--features", type=int, default=6000, help="candidate features per stage")
+    p.add_argument("--positives", type=int, default=3000, help="positive windows")
+    p.add_argument("--negatives", type=int, default=2500, help="negative windows per stage")
+    p.add_argument("--features", type=int, default=3000, help="candidate features per stage")
     p.add_argument("--stages", type=int, default=20, help="maximum number of stages")
     p.add_argument("--max-weak", type=int, default=80, help="maximum weak classifiers per stage")
+    p.add_argument(
+        "--scene-frames",
+        type=int,
+        default=24,
+        help="simulated pylon frames whose sign-free regions add negatives (0 = none)",
+    )
     add_quiet(p)
     p.set_defaults(func=run)
+
+
+def scene_negatives(seed: int, n_frames: int) -> list:
+    """Simulated pylon frames (grey, (K, 4) sign boxes) for negative mining.
+
+    Three short flights (far, middle, near) with seeds derived from ``seed``
+    (``1_000_000 + 10 * seed + k``), so evaluation seeds stay unseen.
+    """
+    import tempfile
+
+    import cv2
+    import numpy as np
+
+    from maps.loader import bundled_map_path, load_map
+    from signpose.simulate import SimSettings, read_boxes, simulate
+
+    sign_map = load_map(bundled_map_path())
+    out = []
+    flights = (("orbit", 55.0), ("climb-hover-depart", 27.0), ("lawnmower", 14.0))
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (traj, dist) in enumerate(flights):
+            n = max(1, n_frames // len(flights))
+            folder = f"{tmp}/f{k}"
+            settings = SimSettings(
+                frames=n,
+                trajectory=traj,
+                distance_m=dist,
+                seed=1_000_000 + 10 * seed + k,
+                format="png",
+            )
+            simulate(sign_map, folder, settings, progress=False)
+            for i, truth in enumerate(read_boxes(f"{folder}/boxes.jsonl")):
+                gray = cv2.imread(f"{folder}/frames/{i:06d}.png", cv2.IMREAD_GRAYSCALE)
+                boxes = np.array([s["bbox_px"] for s in truth["signs"]], float).reshape(-1, 4)
+                # Grow each box so that no window holds a sizeable part of a sign.
+                boxes[:, :2] -= 0.1 * boxes[:, 2:]
+                boxes[:, 2:] *= 1.2
+                out.append((gray, boxes))
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
     for name in ("positives", "negatives", "features", "stages", "max_weak"):
         if getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be >= 1")
+    if args.scene_frames < 0:
+        raise InputError("--scene-frames must be >= 0")
     settings = TrainSettings(
         features_per_stage=args.features, max_stages=args.stages, max_weak_per_stage=args.max_weak
     )
@@ -52,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     stages = tqdm(desc="boosting", disable=args.quiet, unit="weak")
 
     def progress(msg: str) -> None:
+        bar.close()  # positives are done once boosting reports
         if msg.startswith("weak"):
             stages.update(1)
             stages.set_postfix_str(msg)
@@ -60,8 +108,16 @@ def run(args: argparse.Namespace) -> int:
             if not args.quiet:
                 tqdm.write(msg)
 
+    scenes = scene_negatives(args.seed, args.scene_frames) if args.scene_frames else []
     cascade = train_sign_cascade(
-        args.seed, args.positives, args.negatives, settings, progress, pos_progress=bar.update
+        args.seed,
+        args.positives,
+        args.negatives,
+        settings,
+        progress,
+        pos_progress=bar.update,
+        scene_negatives=scenes,
+        on_stage=lambda c: write_cascade_xml(args.out, c, "partial: training in progress"),
     )
     bar.close()
     stages.close()
@@ -69,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
     cmd = (
         f"signpose train-detector --out {args.out.name} --seed {args.seed} "
         f"--positives {args.positives} --negatives {args.negatives} "
-        f"--features {args.features} --stages {args.stages} --max-weak {args.max_weak}"
+        f"--features {args.features} --stages {args.stages} --max-weak {args.max_weak} "
+        f"--scene-frames {args.scene_frames}"
     )
     comment = (
         "signpose sign detector: Haar/Adaboost attentional cascade (paper 2.1), 24x24 window.\n"
