@@ -103,6 +103,11 @@ def _sample_points() -> np.ndarray:
         pts += [0.41 * radial, 0.3 * radial, 0.19 * radial]
     h = _LOCATION_SIDE / 4
     pts += [[0.0, 0.0], [-h, -h], [h, -h], [h, h], [-h, h]]
+    # Radially inside and outside every coded slot: black whatever the code,
+    # which pins the scale (a hypothesis at the wrong size puts white here).
+    for ang in _SLOT_ANGLES[1:]:
+        radial = np.array([math.cos(ang), math.sin(ang)])
+        pts += [0.15 * radial, 0.45 * radial]
     return np.asarray(pts)
 
 
@@ -113,6 +118,7 @@ _SAMPLES = _sample_points()
 _S_DIR_LEN = slice(_N_SLOT_SAMPLES, _N_SLOT_SAMPLES + 2)
 _S_BLACK = slice(_N_SLOT_SAMPLES + 2, _N_SLOT_SAMPLES + 2 + 15)
 _S_LOC = slice(_N_SLOT_SAMPLES + 17, _N_SLOT_SAMPLES + 22)
+_S_AROUND = slice(_N_SLOT_SAMPLES + 22, _N_SLOT_SAMPLES + 30)
 # Disc rim points that must lie inside the crop for a reading to count.
 _RIM = 0.46 * np.stack(
     [
@@ -173,7 +179,11 @@ class DecoderSettings:
         min_white_frac: a white slot's samples stay above this white fraction.
         edge_margin_px: the sign's rim must stay this far inside the crop [px].
         thresholds: binarisations tried in turn until one decodes: "mean"
-            (the paper's), then fallbacks "otsu", "high", "adaptive".
+            (the paper's), then fallbacks "otsu", "high", "adaptive", "open".
+        perspective_correction: fit the homography to the rectangles' image
+            centroids (True) rather than treating centroids as images of the
+            rectangles' centres (False, biased under perspective; kept to
+            measure that bias).
         region_margin: ``decode_region`` grows the box by this fraction per side.
     """
 
@@ -187,7 +197,8 @@ class DecoderSettings:
     max_black_frac: float = 0.35
     min_white_frac: float = 0.55
     edge_margin_px: float = 0.0
-    thresholds: tuple[str, ...] = ("mean", "otsu", "high", "adaptive")
+    thresholds: tuple[str, ...] = ("mean", "otsu", "high", "adaptive", "open")
+    perspective_correction: bool = True
     region_margin: float = 0.25
 
 
@@ -333,7 +344,9 @@ def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSet
     worst_black = (blacks[-2] - black) * inv  # the second brightest of 15
     worst_white = (locs[0] - black) * inv
     dir_len = float((vals[_S_DIR_LEN].min() - black) * inv)
-    if worst_black > 0.3 or worst_white < 0.6 or dir_len < 0.45:
+    around = np.sort(vals[_S_AROUND])
+    worst_around = (around[-2] - black) * inv
+    if worst_black > 0.3 or worst_white < 0.6 or dir_len < 0.45 or worst_around > 0.5:
         return _Reading(None, "inconsistent", 0.0, black, white)
     t = (vals[:_N_SLOT_SAMPLES].reshape(N_BITS + 1, _N_OFFSETS) - black) * inv
     feats = np.stack([t[:, _N_OFFSETS // 2], t.mean(axis=1)], axis=1)  # (5, 2)
@@ -543,12 +556,22 @@ def decode_roi(
         dark = _dark_mask(g, kind)
         if dark is None:
             continue
-        res = _decode_at(g, dark, allowed, settings)
+        if kind == "open":
+            # Read gray levels with the thin dark line closed too.
+            k = _open_kernel(g)
+            res = _decode_at(cv2.morphologyEx(g, cv2.MORPH_CLOSE, k), dark, allowed, settings)
+        else:
+            res = _decode_at(g, dark, allowed, settings)
         if res.code is not None or res.reason == "code_not_in_map":
             return res
         if _REASON_RANK[res.reason] > _REASON_RANK[best.reason]:
             best = res
     return best
+
+
+def _open_kernel(g: np.ndarray) -> np.ndarray:
+    k = max(3, int(round(0.035 * min(g.shape))) | 1)
+    return np.ones((k, k), np.uint8)
 
 
 def _dark_mask(g: np.ndarray, kind: str) -> np.ndarray | None:
@@ -568,6 +591,14 @@ def _dark_mask(g: np.ndarray, kind: str) -> np.ndarray | None:
         k = int(0.98 * (flat.size - 1))
         top = float(np.partition(flat, k)[k])
         _, dark = cv2.threshold(g, 0.5 * (cv2.mean(g)[0] + top), 255, cv2.THRESH_BINARY_INV)
+    elif kind == "open":
+        # A thin dark line across the face (a power line) splits white
+        # rectangles into pieces; opening the dark mask with a kernel wider
+        # than the line and narrower than the gaps between parts joins them.
+        if min(g.shape) < 60:
+            return None
+        _, dark = cv2.threshold(g, cv2.mean(g)[0], 255, cv2.THRESH_BINARY_INV)
+        dark = cv2.morphologyEx(dark, cv2.MORPH_OPEN, _open_kernel(g))
     elif kind == "adaptive":
         block = max(3, (min(g.shape) // 3) | 1)
         dark = cv2.adaptiveThreshold(
@@ -677,7 +708,9 @@ def _decode_region_contour(
         # Step 6: smallest area and largest aspect ratio.
         ring_sorted = sorted(ring, key=lambda k: -holes[k].aspect / holes[k].area)
         for di in ring_sorted[: settings.max_direction_candidates]:
-            res = _try_hypothesis(g, holes, li, di, rel, radius, whitener, allowed, settings)
+            res = _try_hypothesis(
+                g, holes, li, di, rel, radius, whitener, touches, allowed, settings
+            )
             if res.code is not None or res.reason == "code_not_in_map":
                 return res
             if _REASON_RANK[res.reason] > _REASON_RANK[best.reason]:
@@ -693,6 +726,7 @@ def _try_hypothesis(
     rel: np.ndarray,
     radius: np.ndarray,
     whitener: np.ndarray,
+    touches_border: bool,
     allowed: frozenset[str] | None,
     settings: DecoderSettings,
 ) -> DecodeResult:
@@ -723,7 +757,8 @@ def _try_hypothesis(
         # Only a plausible sign counts as cut: a wild hypothesis can also
         # put its rim outside.
         span = float(np.ptp(rim, axis=0).max())
-        return _fail("cut_by_edge" if span < 1.6 * max(w, h) else "no_location")
+        plausible = span < 1.6 * max(w, h) and touches_border
+        return _fail("cut_by_edge" if plausible else "no_location")
     # Every hole the hypothesis leaves unexplained must be small: a sign
     # shows no white inside its disc besides its rectangles.
     used = {li, di, *slots.values()}
@@ -749,7 +784,8 @@ def _try_hypothesis(
     use = [p for p, v in zip(parts, valid, strict=True) if v]
     if len(use) >= 2:
         fallback = _refit_fallback(image_H_sign, cents, valid)
-        h_ref, rms = _fit_parts(use, cents[valid], fallback, passes=1)
+        passes = 1 if settings.perspective_correction else 0
+        h_ref, rms = _fit_parts(use, cents[valid], fallback, passes=passes)
         if h_ref is not None:
             image_H_sign = h_ref
     else:
