@@ -97,19 +97,25 @@ class ProjectedSign:
 
 
 def _value_noise(rng: np.random.Generator, shape: tuple[int, int], cells: list[int]) -> np.ndarray:
-    """Smooth multi-octave noise in about [-1, 1], tileable, float32 of ``shape``."""
+    """Smooth multi-octave noise in about [-1, 1], float32 of ``shape``, seamless when tiled.
+
+    Each octave is a random grid of ``c`` cells across the height (and as many
+    square cells across the width), wrapped by two cells on every side before
+    the bicubic resize so the result tiles without a seam. ``shape`` must be
+    divisible by every cell count.
+    """
     h, w = shape
     out = np.zeros(shape, np.float32)
     amp, total = 1.0, 0.0
     for c in cells:
-        small = rng.standard_normal((c, max(1, c * w // h))).astype(np.float32)
-        # Wrap one cell so the resized field tiles seamlessly.
-        small = np.concatenate([small, small[:1]], axis=0)
-        small = np.concatenate([small, small[:, :1]], axis=1)
+        cw = max(1, c * w // h)
+        step_y, step_x = h // c, w // cw
+        small = rng.standard_normal((c, cw)).astype(np.float32)
+        padded = np.pad(small, 2, mode="wrap")
         big = cv2.resize(
-            small, (w + w // (small.shape[1] - 1), h + h // (small.shape[0] - 1)), cv2.INTER_CUBIC
+            padded, ((cw + 4) * step_x, (c + 4) * step_y), interpolation=cv2.INTER_CUBIC
         )
-        out += amp * big[:h, :w]
+        out += amp * big[2 * step_y : 2 * step_y + h, 2 * step_x : 2 * step_x + w]
         total += amp
         amp *= 0.55
     return out / total
@@ -130,6 +136,7 @@ class Backdrop:
     GROUND_PX = 2048
     NOISE_PAD = 64
     BG_SCALE = 4
+    MAP_SCALE = 16
 
     def __init__(self, width: int, height: int, seed: int = 0, ground_m_per_px: float = 0.25):
         self.width, self.height = int(width), int(height)
@@ -139,6 +146,8 @@ class Backdrop:
         self._sky: np.ndarray | None = None
         self._ground: np.ndarray | None = None
         self._noise: np.ndarray | None = None
+        self._sky_u8: np.ndarray | None = None
+        self._ground_u8: np.ndarray | None = None
 
     # Layers are built on first use, each from its own seeded stream, so a
     # flight that never needs one (clean frames) does not pay for it.
@@ -148,6 +157,18 @@ class Backdrop:
         if self._sky is None:
             self._sky = self._make_sky(np.random.default_rng([self.seed, 1]))
         return self._sky
+
+    @property
+    def sky_u8(self) -> np.ndarray:
+        if self._sky_u8 is None:
+            self._sky_u8 = np.clip(np.rint(self.sky), 0, 255).astype(np.uint8)
+        return self._sky_u8
+
+    @property
+    def ground_u8(self) -> np.ndarray:
+        if self._ground_u8 is None:
+            self._ground_u8 = np.clip(np.rint(self.ground), 0, 255).astype(np.uint8)
+        return self._ground_u8
 
     @property
     def ground(self) -> np.ndarray:
@@ -190,70 +211,81 @@ class Backdrop:
         mix = np.clip(0.5 + 1.5 * fields, 0, 1)[..., None]
         tex = grass * (1 - mix) + soil * mix
         tex *= (1.0 + 0.35 * base)[..., None]
-        # A few tracks across the fields.
+        # A few tracks across the fields, drawn with their wrapped copies (seamless tile).
         for _ in range(6):
             p = rng.uniform(0, n, 2)
             a = rng.uniform(0, np.pi)
             d = np.array([np.cos(a), np.sin(a)]) * n * 2
-            cv2.line(
-                tex,
-                tuple(int(v) for v in p - d),
-                tuple(int(v) for v in p + d),
-                (150.0, 165.0, 175.0),
-                int(rng.integers(3, 9)),
-                cv2.LINE_AA,
-            )
+            width = int(rng.integers(3, 9))
+            for ox in (-n, 0, n):
+                for oy in (-n, 0, n):
+                    q = p + [ox, oy]
+                    cv2.line(
+                        tex,
+                        tuple(int(v) for v in q - d),
+                        tuple(int(v) for v in q + d),
+                        (150.0, 165.0, 175.0),
+                        width,
+                        cv2.LINE_AA,
+                    )
         return cv2.GaussianBlur(tex, (0, 0), 0.8)
 
     def sky_and_ground(self, K: np.ndarray, world_T_cam: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8 BGR sky and ground as seen from ``world_T_cam`` (world z up).
 
-        Computed at 1/``BG_SCALE`` resolution and upscaled (the background is soft
-        anyway; the lattice and conductors are drawn at full resolution).
+        The ray geometry is evaluated on a 1/``MAP_SCALE`` grid and interpolated,
+        the textures are sampled at 1/``BG_SCALE`` resolution and upscaled (the
+        background is soft anyway; lattice and conductors are drawn at full
+        resolution by ``compose_frame``).
         """
-        sc = self.BG_SCALE
-        hw, hh = -(-self.width // sc), -(-self.height // sc)
-        u = (np.arange(hw, dtype=np.float32) * sc + 0.5 * (sc - 1))[None, :]
-        v = (np.arange(hh, dtype=np.float32) * sc + 0.5 * (sc - 1))[:, None]
+        sc, ms = self.BG_SCALE, self.MAP_SCALE
+        bw, bh = -(-self.width // sc), -(-self.height // sc)
+        mw, mh = -(-self.width // ms) + 1, -(-self.height // ms) + 1
+        # Grid node k of the coarse grid sits at full-resolution pixel k * ms - 0.5 + ...;
+        # nodes are placed so that resizing (mw, mh) -> (bw, bh) keeps them aligned.
+        gu = (np.arange(mw, dtype=np.float64) + 0.5) * (bw / mw) * sc - 0.5
+        gv = (np.arange(mh, dtype=np.float64) + 0.5) * (bh / mh) * sc - 0.5
         Ki = np.linalg.inv(K)
-        R = world_T_cam[:3, :3].astype(np.float32)
-        # Ray direction in the camera frame, then in the world.
-        xc = (Ki[0, 0] * u + Ki[0, 2]).astype(np.float32)
-        yc = (Ki[1, 1] * v + Ki[1, 2]).astype(np.float32)
+        R = np.asarray(world_T_cam, dtype=np.float64)[:3, :3]
+        xc = (Ki[0, 0] * gu + Ki[0, 2])[None, :]
+        yc = (Ki[1, 1] * gv + Ki[1, 2])[:, None]
         dx = R[0, 0] * xc + R[0, 1] * yc + R[0, 2]
         dy = R[1, 0] * xc + R[1, 1] * yc + R[1, 2]
         dz = R[2, 0] * xc + R[2, 1] * yc + R[2, 2]
-        horiz = np.sqrt(dx * dx + dy * dy) + 1e-9
+        horiz = np.sqrt(dx * dx + dy * dy) + 1e-12
         el = np.arctan2(dz, horiz)
-        az = np.arctan2(dy, dx)
-        # Sky: panorama lookup by azimuth / elevation.
-        map_x = ((az / (2 * np.pi)) % 1.0) * self.SKY_W
-        map_y = (1.0 - np.clip(el, 0.0, np.pi / 2) / (np.pi / 2)) * self.SKY_H - 0.5
-        sky = cv2.remap(
-            self.sky, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_WRAP,
-        )  # fmt: skip
-        # Ground: intersect rays with z = 0.
+        # Azimuth relative to the optical axis, so it is continuous across the image.
+        az0 = math.atan2(R[1, 2], R[0, 2])
+        c0, s0 = math.cos(az0), math.sin(az0)
+        az = az0 + np.arctan2(-s0 * dx + c0 * dy, c0 * dx + s0 * dy)
+        sky_x = az / (2 * np.pi) * self.SKY_W
+        sky_y = (1.0 - np.clip(el, 0.0, np.pi / 2) / (np.pi / 2)) * self.SKY_H - 0.5
+        # Ground: intersect rays with z = 0 (clamped far away; hazed out there anyway).
         cam = world_T_cam[:3, 3]
-        h = max(float(cam[2]), 0.5)
-        down = np.minimum(dz, -1e-4)
-        s = h / -down
-        gx = (cam[0] + s * dx) / self.ground_m_per_px
-        gy = (cam[1] + s * dy) / self.ground_m_per_px
-        n = float(self.GROUND_PX)
-        gx = np.mod(gx, n).astype(np.float32)
-        gy = np.mod(gy, n).astype(np.float32)
-        ground = cv2.remap(self.ground, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-        # Aerial perspective: the ground fades into haze toward the horizon.
-        dist = s * horiz
-        haze = (1.0 - np.exp(-dist / 900.0))[..., None]
-        ground = ground * (1 - haze) + self.haze_bgr * haze
-        # Soft horizon (half a degree) between ground and sky.
-        w_sky = np.clip(0.5 + el / np.radians(0.5), 0.0, 1.0)[..., None]
-        img = sky * w_sky + ground * (1 - w_sky)
-        small = np.clip(img, 0, 255).astype(np.uint8)
-        # Sample positions above are the block centres, so a plain resize aligns them.
-        big = cv2.resize(small, (hw * sc, hh * sc), interpolation=cv2.INTER_LINEAR)
+        height = max(float(cam[2]), 0.5)
+        s = np.minimum(height / np.maximum(-dz, 1e-6), 4000.0 / horiz)
+        lim = 30000.0  # remap's fixed-point coordinates
+        gx = np.clip((cam[0] + s * dx) / self.ground_m_per_px, -lim, lim)
+        gy = np.clip((cam[1] + s * dy) / self.ground_m_per_px, -lim, lim)
+        haze = 1.0 - np.exp(-(s * horiz) / 900.0)
+        w_sky = np.clip(0.5 + el / math.radians(0.5), 0.0, 1.0)
+        coarse = np.stack([sky_x, sky_y, gx, gy, w_sky, haze], axis=-1).astype(np.float32)
+        fine = cv2.resize(coarse[..., :4], (bw, bh), interpolation=cv2.INTER_LINEAR)
+        weights = cv2.resize(coarse[..., 4:], (bw, bh), interpolation=cv2.INTER_LINEAR)
+        # Wrap into the textures here: remap's border handling is a slow per-pixel path.
+        sky_x = np.mod(fine[..., 0], np.float32(self.SKY_W))
+        gx = np.mod(fine[..., 2], np.float32(self.GROUND_PX))
+        gy = np.mod(fine[..., 3], np.float32(self.GROUND_PX))
+        sky = cv2.remap(
+            self.sky_u8, sky_x, fine[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP
+        )
+        ground = cv2.remap(self.ground_u8, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        w_sky, haze = weights[..., 0], weights[..., 1]
+        hazy = np.empty_like(ground)
+        hazy[:] = np.rint(self.haze_bgr).astype(np.uint8)
+        ground = cv2.blendLinear(ground, hazy, 1.0 - haze, haze)
+        small = cv2.blendLinear(sky, ground, w_sky, 1.0 - w_sky)
+        big = cv2.resize(small, (bw * sc, bh * sc), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(big[: self.height, : self.width])
 
 
@@ -310,21 +342,18 @@ def _draw_lines(image: np.ndarray, lines: list[ProjectedLine], mask_mode: bool =
         thick = np.maximum(1, np.rint(widths)).astype(int)
         fade = np.round(np.minimum(widths, 1.0), 1)
         ip = np.round(np.clip(pts, -lim, lim) * scale).astype(np.int32)
-        i = 0
-        n = len(widths)
-        while i < n:
-            if not inside[i]:
-                i += 1
+        # Runs of consecutive visible segments with the same drawn width and fade.
+        key = np.where(inside, thick * 100 + np.rint(fade * 10), -1)
+        starts = np.flatnonzero(np.diff(key, prepend=-2) != 0)
+        ends = np.append(starts[1:], len(key))
+        for i, j in zip(starts, ends, strict=True):
+            if key[i] < 0:
                 continue
-            j = i + 1
-            while j < n and inside[j] and thick[j] == thick[i] and fade[j] == fade[i]:
-                j += 1
             if mask_mode:
                 color: tuple[float, ...] = (255.0 * fade[i],)
             else:
                 color = tuple(hz + fade[i] * (c - hz) for c, hz in zip(line.bgr, haze, strict=True))
             cv2.polylines(image, [ip[i : j + 1]], False, color, int(thick[i]), cv2.LINE_AA, shift)
-            i = j
 
 
 def _bbox(polygons: list[np.ndarray], margin: int, w: int, h: int) -> tuple[int, int, int, int]:
@@ -354,10 +383,9 @@ def _render_sign(frame: np.ndarray, sign: ProjectedSign, options: RenderOptions)
     off = np.array([x0, y0], float)
     ss = options.supersample
     alpha = np.zeros((y1 - y0, x1 - x0), np.float32)
-    premult = np.zeros_like(alpha)
     disc = sign.disc_px - off
     fill_polygon_aa(alpha, disc, 1.0, ss)
-    fill_polygon_aa(premult, disc, SIGN_BLACK, ss)
+    premult = alpha * SIGN_BLACK  # the black disc, premultiplied
     for part in sign.white_px:
         fill_polygon_aa(premult, part - off, SIGN_WHITE, ss)
     for poly, value, opacity in sign.dirt_px:
@@ -435,12 +463,13 @@ def compose_frame(
         if bg_kernel is not None:
             mask = cv2.filter2D(mask, -1, bg_kernel, borderType=cv2.BORDER_CONSTANT)
         # Thin lines cover few pixels: composite only those.
-        idx = np.nonzero(mask)
-        if len(idx[0]):
-            a = mask[idx].astype(np.float32)[:, None] * (1.0 / 255.0)
-            px = frame[idx].astype(np.float32)
+        nz = cv2.findNonZero(mask)
+        if nz is not None:
+            xs, ys = nz[:, 0, 0], nz[:, 0, 1]
+            a = mask[ys, xs].astype(np.float32)[:, None] * (1.0 / 255.0)
+            px = frame[ys, xs].astype(np.float32)
             color = np.asarray(lines_front[0].bgr, np.float32)
-            frame[idx] = np.clip(np.rint(px + a * (color - px)), 0, 255).astype(np.uint8)
+            frame[ys, xs] = np.clip(np.rint(px + a * (color - px)), 0, 255).astype(np.uint8)
     if not options.lighting:
         gain, offset = 1.0, 0.0
     sigma = float(options.noise_sigma)
