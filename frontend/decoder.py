@@ -400,7 +400,8 @@ def _subpixel_centroids(
     out = np.zeros((len(parts), 2))
     valid = np.zeros(len(parts), bool)
     c0, cx, cy = _project(image_H_sign, _UNIT_STEPS)
-    scale = math.sqrt(abs(float(np.cross(cx - c0, cy - c0)))) / 0.01  # px per diameter
+    ex, ey = cx - c0, cy - c0
+    scale = math.sqrt(abs(float(ex[0] * ey[1] - ex[1] * ey[0]))) / 0.01  # px per diameter
     grow = min(pad_px / max(scale, 1e-9), 0.035)
     big = _PART_QUADS[parts] + grow * _PART_GROW[parts]
     polys = _project(image_H_sign, big.reshape(-1, 2)).reshape(len(parts), 4, 2)
