@@ -195,12 +195,17 @@ def read_report(path: str | Path) -> dict:
         raise InputError(f"{p}: cannot read report ({exc})") from None
 
 
-def method_files(out_dir: str | Path) -> dict[str, Path]:
-    """method name -> TUM file of an estimate folder (known methods first)."""
+def method_files(out_dir: str | Path, exclude: str | Path | None = None) -> dict[str, Path]:
+    """method name -> TUM file of an estimate folder (known methods first, ``exclude`` left out)."""
     d = Path(out_dir)
     if not d.is_dir():
         raise InputError(f"{d}: not a folder; pass the --out folder of 'signpose estimate'")
-    files = {p.stem: p for p in sorted(d.glob("*.tum")) if p.stem != "groundtruth"}
+    skip = Path(exclude).resolve() if exclude is not None else None
+    files = {
+        p.stem: p
+        for p in sorted(d.glob("*.tum"))
+        if p.stem not in ("groundtruth", "gt") and p.resolve() != skip
+    }
     order = ["baseline", "pnp", "smoothed", "causal"]
     ranked = {k: files[k] for k in order if k in files}
     ranked.update({k: v for k, v in files.items() if k not in ranked})
@@ -217,7 +222,9 @@ def compare_dir(out_dir: str | Path, gt_path: str | Path) -> dict[str, dict]:
         (rewritten atomically; created if missing).
     """
     gt = read_tum(gt_path)
-    metrics = {name: compute_metrics(read_tum(p), gt) for name, p in method_files(out_dir).items()}
+    metrics = {
+        name: compute_metrics(read_tum(p), gt) for name, p in method_files(out_dir, gt_path).items()
+    }
     out = {name: m.to_dict() for name, m in metrics.items()}
     report_path = Path(out_dir) / "report.json"
     report = read_report(report_path) if report_path.exists() else {}

@@ -88,6 +88,8 @@ def synthesize_observations(
     stamps_ns = np.round(np.asarray(trajectory.stamps_s) * 1e9).astype(np.int64)
     names_points = [_sign_keypoints(sign, s.keypoints) for sign in sign_map.signs]
     w, h = camera.width, camera.height
+    # The sigma written into each observation must be > 0 even for noise-free data.
+    reported_sigma = s.sigma_px if s.sigma_px > 0 else 0.1
     frames: list[FrameObservations] = []
     wrong: list[tuple[int, str, str]] = []
     false: list[tuple[int, str]] = []
@@ -125,12 +127,12 @@ def synthesize_observations(
                 max(us) - min(us) + 2 * radius,
                 max(vs) - min(vs) + 2 * radius,
             )
-            signs.append(SignObservation(code, kps, bbox, s.sigma_px, 1.0))
+            signs.append(SignObservation(code, kps, bbox, reported_sigma, 1.0))
         n_false = int(rng.binomial(len(signs), s.false_rate)) if s.false_rate > 0 else 0
         for _ in range(n_false):
             code = codes[int(rng.integers(len(codes)))]
             c = (float(rng.uniform(0, w - 1)), float(rng.uniform(0, h - 1)))
-            signs.append(SignObservation(code, {"center": c}, None, s.sigma_px, 0.5))
+            signs.append(SignObservation(code, {"center": c}, None, reported_sigma, 0.5))
             false.append((i, code))
         frames.append(FrameObservations(i, int(stamps_ns[i]), (w, h), tuple(signs)))
     return frames, SyntheticTruth(tuple(wrong), tuple(false))

@@ -78,3 +78,41 @@ def white_centroid_px(gray: np.ndarray, center_px, radius_px: float, iterations:
         w = np.clip(patch - dark, 0, None) * (d <= radius_px)
         c = np.array([(w * xx).sum() / w.sum(), (w * yy).sum() / w.sum()])
     return c
+
+
+# ---------------------------------------------------------------- estimator
+# Builders for tests/test_estimator*.py and test_metrics.py.
+
+
+def estimator_scene(
+    n_frames: int = 40,
+    sigma_px: float = 0.0,
+    seed: int = 0,
+    flat: bool = True,
+    wrong_code_rate: float = 0.0,
+    false_rate: float = 0.0,
+    hfov_deg: float = 60.0,
+    duration_s: float = 7.0,
+):
+    """(sign_map, camera, frames, ground truth, faults): a short paper-like flight.
+
+    The flight lasts ``duration_s`` whatever ``n_frames`` (so speeds stay realistic).
+
+    ``flat`` puts every sign on the best-fit plane of the demo map (the
+    paper's planar assumption), so the baseline is exact without noise.
+    """
+    from estimator.camera import pinhole_camera
+    from estimator.synthetic import SyntheticSettings, flatten_map, paper_like_frames
+
+    sign_map = load_map(bundled_map_path())
+    if flat:
+        sign_map = flatten_map(sign_map)
+    camera = pinhole_camera(1920, 1080, hfov_deg)
+    rng = np.random.default_rng(seed)
+    settings = SyntheticSettings(
+        sigma_px=sigma_px, wrong_code_rate=wrong_code_rate, false_rate=false_rate
+    )
+    frames, gt, truth = paper_like_frames(
+        sign_map, camera, n_frames, rng, settings, fps=n_frames / duration_s, seed=seed
+    )
+    return sign_map, camera, frames, gt, truth

@@ -1,0 +1,134 @@
+"""The estimate/compare commands: outputs, round trips and bad input."""
+
+import json
+
+import numpy as np
+import pytest
+from conftest import estimator_scene
+
+from estimator.camera import pinhole_camera, write_camera_info
+from estimator.results_io import read_trajectory_csv
+from estimator.tum import read_tum, write_tum
+from frontend.observations import write_observations
+from maps.loader import bundled_map_path
+from signpose.cli import main
+
+
+@pytest.fixture
+def flight(tmp_path):
+    sign_map, camera, frames, gt, _ = estimator_scene(n_frames=25, sigma_px=0.3, flat=False)
+    obs = tmp_path / "obs.jsonl"
+    write_observations(obs, frames)
+    cam = tmp_path / "cam.yaml"
+    write_camera_info(cam, camera)
+    gt_path = tmp_path / "gt.tum"
+    write_tum(gt_path, gt)
+    return obs, cam, gt_path, gt
+
+
+def test_estimate_then_compare_round_trip(flight, tmp_path, capsys):
+    obs, cam, gt_path, gt = flight
+    out = tmp_path / "out"
+    args = [str(obs), "--map", str(bundled_map_path()), "--camera", str(cam), "--out", str(out)]
+    assert main(["estimate", *args, "--method", "all", "--quiet"]) == 0
+    for name in ("baseline", "pnp", "smoothed"):
+        assert (out / f"{name}.tum").exists()
+    csv = read_trajectory_csv(out / "trajectory.csv")
+    sm = read_tum(out / "smoothed.tum")
+    assert np.allclose(csv["smoothed"]["x"], sm.world_t_cam[:, 0], atol=1e-6)
+    assert np.all(np.isfinite(csv["smoothed"]["sigma_x"]))
+    assert np.allclose(sm.world_t_cam, gt.world_t_cam, atol=0.5)
+    base = csv["baseline"]
+    posed = ~np.isnan(base["x"])
+    assert len(read_tum(out / "baseline.tum")) == posed.sum()
+    report = json.loads((out / "report.json").read_text())
+    assert report["coverage"]["smoothed"]["coverage"] == 1.0
+    assert {"settings", "versions", "outliers"} <= set(report)
+    capsys.readouterr()
+    assert main(["compare", str(out), "--gt", str(gt_path)]) == 0
+    table = capsys.readouterr().out
+    assert "smoothed" in table and "MAE x" in table
+    report = json.loads((out / "report.json").read_text())
+    assert report["metrics"]["methods"]["smoothed"]["coverage"] == 1.0
+    assert report["coverage"]["smoothed"]["posed"] == 25  # earlier content kept
+
+
+def _run_error(argv, capsys) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    return err
+
+
+def test_malformed_observation_line(flight, tmp_path, capsys):
+    obs, cam, _, _ = flight
+    lines = obs.read_text().splitlines()
+    lines[3] = '{"frame": 3, "signs": 5}'
+    obs.write_text("\n".join(lines) + "\n")
+    err = _run_error(
+        [
+            "estimate",
+            str(obs),
+            "--map",
+            str(bundled_map_path()),
+            "--camera",
+            str(cam),
+            "--out",
+            str(tmp_path / "o"),
+            "--quiet",
+        ],
+        capsys,
+    )
+    assert "line 4" in err and str(obs) in err
+
+
+def test_camera_size_mismatch(flight, tmp_path, capsys):
+    obs, _, _, _ = flight
+    cam = tmp_path / "small.yaml"
+    write_camera_info(cam, pinhole_camera(1280, 720))
+    err = _run_error(
+        [
+            "estimate",
+            str(obs),
+            "--map",
+            str(bundled_map_path()),
+            "--camera",
+            str(cam),
+            "--out",
+            str(tmp_path / "o"),
+            "--quiet",
+        ],
+        capsys,
+    )
+    assert "1920x1080" in err and "1280x720" in err
+
+
+def test_map_without_shared_code(flight, tmp_path, capsys):
+    obs, cam, _, _ = flight
+    m = tmp_path / "other.yaml"
+    m.write_text(
+        'frame: other\nsigns:\n  - code: "1111"\n    center_m: [0, 0, 10]\n'
+        "    diameter_m: 0.8\n    sigma_m: 0.01\n"
+    )
+    err = _run_error(
+        [
+            "estimate",
+            str(obs),
+            "--map",
+            str(m),
+            "--camera",
+            str(cam),
+            "--out",
+            str(tmp_path / "o"),
+            "--quiet",
+        ],
+        capsys,
+    )
+    assert str(m) in err and "no code" in err
+
+
+def test_compare_without_estimates(tmp_path, capsys):
+    gt = tmp_path / "gt.tum"
+    gt.write_text("0 0 0 0 0 0 0 1\n")
+    err = _run_error(["compare", str(tmp_path), "--gt", str(gt)], capsys)
+    assert "signpose estimate" in err

@@ -1,0 +1,75 @@
+"""Trajectory metrics against hand-computed values."""
+
+import numpy as np
+from conftest import estimator_scene
+
+from estimator.metrics import associate, compute_metrics, rpe_translation, umeyama_se3
+from estimator.tum import Trajectory
+
+
+def _line_traj(n: int = 11, step: float = 0.5) -> Trajectory:
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.arange(n) * step
+    return Trajectory.from_matrices(np.arange(n) * 0.1, T)
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def test_identical_trajectories_have_zero_error():
+    gt = _line_traj()
+    m = compute_metrics(gt, gt)
+    assert m.n_matched == 11 and m.coverage == 1.0
+    assert max(m.mae_xyz) == 0 and m.ate_rmse == 0 and m.rpe_trans_per_m == 0
+
+
+def test_rigid_offset_is_removed_by_alignment():
+    _, _, _, gt, _ = estimator_scene(n_frames=30)
+    R = _rot_z(0.3)
+    t = np.array([1.0, -2.0, 0.5])
+    T = gt.world_T_cam().copy()
+    G = np.eye(4)
+    G[:3, :3], G[:3, 3] = R, t
+    est = Trajectory.from_matrices(gt.stamps_s, G @ T)
+    m = compute_metrics(est, gt)
+    assert m.ate_rmse_aligned < 1e-9
+    assert m.ate_rmse > 1.0
+    # RPE compares relative motions: a global rigid transform leaves it at zero.
+    assert m.rpe_trans_per_m < 1e-9
+    R2, t2 = umeyama_se3(est.world_t_cam, gt.world_t_cam)
+    assert np.allclose(R2, R.T, atol=1e-9) and np.allclose(t2, -R.T @ t, atol=1e-9)
+
+
+def test_mae_and_ate_by_hand():
+    gt = _line_traj(4)
+    p = gt.world_t_cam.copy()
+    p += np.array([[0.1, 0, 0], [0, -0.2, 0], [0, 0, 0.3], [0.1, 0.2, 0.0]])
+    est = Trajectory(gt.stamps_s, p, gt.quat_xyzw)
+    m = compute_metrics(est, gt)
+    assert np.allclose(m.mae_xyz, [0.05, 0.1, 0.075])
+    assert np.isclose(m.ate_rmse, np.sqrt((0.01 + 0.04 + 0.09 + 0.05) / 4))
+
+
+def test_rpe_per_metre_by_hand():
+    # Ground truth moves 0.5 m per pose: checkpoints every 2 poses (1 m).
+    gt = _line_traj(9)
+    T = gt.world_T_cam().copy()
+    T[:, 0, 3] *= 1.1  # the estimate travels 10 % further
+    errs, n = rpe_translation(T, gt.world_T_cam(), delta_m=1.0)
+    assert n == 4 and np.allclose(errs, 0.1)
+    m = compute_metrics(Trajectory.from_matrices(gt.stamps_s, T), gt)
+    assert np.isclose(m.rpe_trans_per_m, 0.1)
+
+
+def test_association_and_coverage():
+    gt = _line_traj(10)
+    keep = np.array([0, 2, 3, 7])
+    est = Trajectory(gt.stamps_s[keep] + 0.004, gt.world_t_cam[keep], gt.quat_xyzw[keep])
+    ie, ig = associate(est.stamps_s, gt.stamps_s, 0.01)
+    assert ie.tolist() == [0, 1, 2, 3] and ig.tolist() == keep.tolist()
+    m = compute_metrics(est, gt)
+    assert m.coverage == 0.4
+    far = Trajectory(gt.stamps_s[keep] + 0.05, gt.world_t_cam[keep], gt.quat_xyzw[keep])
+    assert compute_metrics(far, gt).n_matched == 0
