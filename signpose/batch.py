@@ -51,6 +51,7 @@ class FlightJob:
         topic: MCAP image topic, or "".
         fps: frame rate for an image folder without times, or 0.
         with_images: put images into result.mcap.
+        plots: write the PNG plots.
     """
 
     flight: str
@@ -62,6 +63,7 @@ class FlightJob:
     topic: str = ""
     fps: float = 0.0
     with_images: bool = False
+    plots: bool = True
 
 
 @dataclass(frozen=True)
@@ -136,7 +138,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             gt_path=gt_path or None,
             topic=job.topic or None,
             fps=job.fps or None,
-            settings=RunSettings(with_images=job.with_images),
+            settings=RunSettings(with_images=job.with_images, plots=job.plots),
             progress=False,
         )
         outcome = FlightOutcome(
@@ -245,6 +247,7 @@ def run_batch(
     topic: str | None = None,
     fps: float | None = None,
     with_images: bool = False,
+    plots: bool = True,
     jobs: int = 1,
     scheduler: str | None = None,
     progress: bool = True,
@@ -258,7 +261,7 @@ def run_batch(
         out_dir: output folder; one sub-folder per flight.
         camera_path: camera for all flights; None: ``camera.yaml`` beside each
             input, else the log's calibration.
-        topic, fps, with_images: as for ``signpose run``.
+        topic, fps, with_images, plots: as for ``signpose run``.
         jobs: parallel worker processes (local pool).
         scheduler: ``tcp://host:port`` of a Dask scheduler instead of the local pool.
         progress: one tqdm bar over flights.
@@ -292,6 +295,7 @@ def run_batch(
                 topic or "",
                 float(fps or 0.0),
                 with_images,
+                plots,
             )
         )
     bar = tqdm(

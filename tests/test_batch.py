@@ -61,7 +61,10 @@ def test_flight_names_are_unique():
 def test_batch_with_a_bad_flight_then_rerun(flights, replay, tmp_path, capsys):
     _, inputs = flights
     out = tmp_path / "out"
-    code = main(["batch", *map(str, inputs), "--map", MAP, "--out", str(out), "--jobs", "2", "-q"])
+    code = main(
+        ["batch", *map(str, inputs), "--map", MAP, "--out", str(out), "--jobs", "2", "--no-plots",
+         "-q"]
+    )  # fmt: skip
     assert code == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "bad_video" in err and "Traceback" not in err

@@ -74,7 +74,7 @@ def test_truncated_video(flight, replay, tmp_path, capsys):
     out = tmp_path / "out"
     code = main(
         ["run", str(cut), "--map", MAP, "--camera", str(flight.camera_path), "--out", str(out),
-         "--quiet"]
+         "--no-plots", "--quiet"]
     )  # fmt: skip
     assert code == 2
     line = _one_error_line(capsys, "cut.avi", "video stopped at frame", "of 12")
@@ -96,7 +96,7 @@ def test_truncated_mcap(tmp_path, replay, flight, capsys):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
     out = tmp_path / "out"
-    code = main(["run", str(cut), "--map", MAP, "--out", str(out), "--quiet"])
+    code = main(["run", str(cut), "--map", MAP, "--out", str(out), "--no-plots", "--quiet"])
     assert code == 2
     _one_error_line(capsys, "cut.mcap", "log stopped after", "truncated or corrupt")
     n = len(read_observations(out / "observations.jsonl"))

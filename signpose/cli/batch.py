@@ -25,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--topic", help="MCAP image topic")
     p.add_argument("--fps", type=float, help="frame rate of image folders without frames.csv")
     p.add_argument("--with-images", action="store_true", help="put the images into result.mcap")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--jobs", type=int, default=1, help="parallel flights (default 1)")
     p.add_argument(
         "--scheduler",
@@ -49,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
         topic=args.topic,
         fps=args.fps,
         with_images=args.with_images,
+        plots=not args.no_plots,
         jobs=args.jobs,
         scheduler=args.scheduler,
         progress=not args.quiet,
