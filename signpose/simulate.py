@@ -149,6 +149,14 @@ class SimSettings:
             raise InputError(f"hfov_deg must be in (1, 170), got {self.hfov_deg}")
         if self.jpeg_quality is not None and not 1 <= self.jpeg_quality <= 100:
             raise InputError(f"jpeg_quality must be in 1..100, got {self.jpeg_quality}")
+        if not 0.0 <= self.exposure_fraction <= 1.0:
+            raise InputError(f"exposure_fraction must be in [0, 1], got {self.exposure_fraction}")
+        if not (self.noise_sigma >= 0 and math.isfinite(self.noise_sigma)):
+            raise InputError(f"noise_sigma must be >= 0, got {self.noise_sigma}")
+        if not self.distance_m > 0:
+            raise InputError(f"distance_m must be > 0, got {self.distance_m}")
+        if not 1 <= self.supersample <= 16:
+            raise InputError(f"supersample must be in 1..16, got {self.supersample}")
         return self
 
 
@@ -842,26 +850,27 @@ def make_frame_writer(
     fmt: str,
     out_dir: Path,
     fps: float,
-    size: tuple[int, int],
-    camera: CameraModel | None = None,
-    world_frame: str = "world",
+    camera: CameraModel,
     world_T_cams: np.ndarray | None = None,
-) -> _WriterBase:
-    """The frame writer for ``fmt`` ("mp4", "png" or "mcap") in ``out_dir``.
+    world_frame: str = "world",
+) -> FrameWriter:
+    """The frame writer for ``fmt`` in ``out_dir``.
 
-    ``camera``, ``world_frame`` and ``world_T_cams`` (N, 4, 4) are for "mcap",
-    which also logs the camera and the ground truth.
+    Args:
+        fmt: one of ``FORMATS``.
+        out_dir: the output folder.
+        fps: frame rate [Hz].
+        camera: the camera of the frames (image size; containers that store
+            the calibration use all of it).
+        world_T_cams: (N, 4, 4) true pose of frame i, for containers that store
+            ground truth next to the images (unused by mp4/png).
+        world_frame: name of the world frame (the map's ``frame``).
     """
+    size = (camera.width, camera.height)
     if fmt == "mp4":
-        return Mp4Writer(out_dir / "video.mp4", fps, size)
+        return Mp4Writer(Path(out_dir) / "video.mp4", fps, size)
     if fmt == "png":
-        return PngWriter(out_dir / "frames")
-    if fmt == "mcap":
-        from signpose.mcap_io import McapFrameWriter
-
-        if camera is None:
-            raise ValueError("the mcap frame writer needs the camera")
-        return McapFrameWriter(out_dir / "flight.mcap", camera, world_frame, world_T_cams)
+        return PngWriter(Path(out_dir) / "frames")
     raise InputError(f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
 
 
@@ -935,15 +944,10 @@ def simulate(
     options = settings.render_options()
     half_exposure = 0.5 * settings.exposure_fraction / settings.fps
     lines: list[str] = []
-    with make_frame_writer(
-        settings.format,
-        out,
-        settings.fps,
-        (camera.width, camera.height),
-        camera,
-        sign_map.frame,
-        poses,
-    ) as writer:
+    writer = make_frame_writer(
+        settings.format, out, settings.fps, camera, poses, world_frame=sign_map.frame
+    )
+    with writer:
         for i in tqdm(range(len(traj)), desc="simulate", unit="frame", disable=not progress):
             t = float(stamps[i])
             exposure = None

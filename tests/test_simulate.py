@@ -256,7 +256,8 @@ def test_bad_settings_raise_input_error(demo_map, tmp_path):
 @pytest.mark.parametrize("fmt", ["mp4", "png"])
 def test_frame_writer_leaves_nothing_on_failure(tmp_path, fmt):
     frame = np.zeros((64, 96, 3), np.uint8)
-    with pytest.raises(RuntimeError), make_frame_writer(fmt, tmp_path, 30.0, (96, 64)) as w:
+    camera = simulated_camera(SimSettings(width=96, height=64))
+    with pytest.raises(RuntimeError), make_frame_writer(fmt, tmp_path, 30.0, camera) as w:
         w.write(0, 0, frame)
         raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
