@@ -688,6 +688,7 @@ def _decode_region_contour(
     touches = x <= 0 or y <= 0 or x + bw >= w or y + bh >= h
     disc_like = det > 0 and abs(area / (4 * math.pi * math.sqrt(det)) - 1.0) < 0.12 and not touches
     centre_ref = outer_c if disc_like else crop_centre
+    rim_contour = outer if disc_like else None
     # Step 5: the hole closest to the centre of the sign's extent.
     by_dist = sorted(range(len(holes)), key=lambda k: np.hypot(*(holes[k].centroid - centre_ref)))
     best = _fail("no_location")
@@ -710,7 +711,7 @@ def _decode_region_contour(
         ring_sorted = sorted(ring, key=lambda k: -holes[k].aspect / holes[k].area)
         for di in ring_sorted[: settings.max_direction_candidates]:
             res = _try_hypothesis(
-                g, holes, li, di, rel, radius, whitener, touches, allowed, settings
+                g, holes, li, di, rel, radius, whitener, touches, rim_contour, allowed, settings
             )
             if res.code is not None or res.reason == "code_not_in_map":
                 return res
@@ -728,6 +729,7 @@ def _try_hypothesis(
     radius: np.ndarray,
     whitener: np.ndarray,
     touches_border: bool,
+    rim_contour: np.ndarray | None,
     allowed: frozenset[str] | None,
     settings: DecoderSettings,
 ) -> DecodeResult:
@@ -798,6 +800,18 @@ def _try_hypothesis(
     ]
     kp_idx = [_PART_NAMES.index(n) for n in kp_names]
     uv = _project(image_H_sign, _PART_CENTRES[kp_idx])
+    if 2 <= len(use) < 4 and rim_contour is not None and settings.perspective_correction:
+        # Too few parts for a homography: take the perspective from the disc's
+        # rim instead and remove each part's predicted centroid offset.
+        h_rim = _homography_from_rim(rim_contour, cents[valid][0], cents[valid][1])
+        if h_rim is not None:
+            quads = _PART_QUADS[use]
+            proj = _project(h_rim, quads.reshape(-1, 2)).reshape(quads.shape)
+            offset = polygon_centroids(proj) - _project(h_rim, _PART_CENTRES[use])
+            fixed = dict(zip(use, cents[valid] - offset, strict=True))
+            uv = np.array([fixed.get(p, q) for p, q in zip(kp_idx, uv, strict=True)])
+            shift = fixed[0] - _project(h_rim, _PART_CENTRES[:1])[0]
+            image_H_sign = np.array([[1, 0, shift[0]], [0, 1, shift[1]], [0, 0, 1.0]]) @ h_rim
     keypoints = {n: (float(p[0]), float(p[1])) for n, p in zip(kp_names, uv, strict=True)}
     ellipse = disc_ellipse(image_H_sign, 1.0)
     scale_px = ellipse[1][1]
@@ -816,6 +830,75 @@ def _try_hypothesis(
         image_H_sign=image_H_sign,
         residual_px=rms,
     )
+
+
+def _homography_from_rim(
+    rim_contour: np.ndarray, centre_px: np.ndarray, direction_px: np.ndarray
+) -> np.ndarray | None:
+    """image_H_sign from the disc's rim (an ellipse) and the images of two points.
+
+    The polar of the centre's image with respect to the rim's image conic is
+    the plane's vanishing line (pole-polar duality of a circle and its
+    centre). Sending it to infinity leaves an affine view of the disc, fixed
+    by the ellipse there and the direction to the directional rectangle.
+    """
+    if len(rim_contour) < 6:
+        return None
+    (ex, ey), (ea, eb), eang = cv2.fitEllipse(rim_contour)
+    if min(ea, eb) <= 2:
+        return None
+    t = math.radians(eang)
+    r = np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])
+    q = r @ np.diag([4.0 / ea**2, 4.0 / eb**2]) @ r.T  # (x-e)^T q (x-e) = 1
+    e = np.array([ex, ey])
+    conic = np.eye(3)
+    conic[:2, :2] = q
+    conic[:2, 2] = conic[2, :2] = -q @ e
+    conic[2, 2] = e @ q @ e - 1.0
+    c = np.array([centre_px[0], centre_px[1], 1.0])
+    line = conic @ c
+    if abs(line @ c) < 1e-12:
+        return None
+    line = line / (line @ c)
+    p = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], line])
+    ok, p_inv = cv2.invert(p)
+    if not ok:
+        return None
+    rect = p_inv.T @ conic @ p_inv
+    a2 = rect[:2, :2]
+    det = a2[0, 0] * a2[1, 1] - a2[0, 1] ** 2
+    if det <= 0:
+        return None
+    pc = _project(p, centre_px.reshape(1, 2))[0]
+    pd = _project(p, direction_px.reshape(1, 2))[0]
+    k = -(pc @ a2 @ pc + 2 * rect[:2, 2] @ pc + rect[2, 2])
+    if k <= 0:
+        return None
+    # M maps the sign's disc (diameter 1, radius 1/2) onto the rectified
+    # ellipse y^T (a2 / k) y = 1: M = 2 (a2 / k)^(-1/2).
+    w = _whitener_sym(a2 / k)
+    if w is None:
+        return None
+    m = 2.0 * w
+    qd = np.linalg.solve(m, pd - pc)
+    psi = math.atan2(qd[1], qd[0]) + math.pi / 2
+    rot = np.array([[math.cos(psi), -math.sin(psi)], [math.sin(psi), math.cos(psi)]])
+    a = np.eye(3)
+    a[:2, :2] = m @ rot @ np.diag([1.0, -1.0])
+    a[:2, 2] = pc
+    h = p_inv @ a
+    return h / h[2, 2]
+
+
+def _whitener_sym(m: np.ndarray) -> np.ndarray | None:
+    """Inverse square root of a symmetric positive definite 2x2 matrix."""
+    a, b, c = float(m[0, 0]), float(m[0, 1]), float(m[1, 1])
+    det = a * c - b * b
+    if det <= 0 or a <= 0:
+        return None
+    sq = math.sqrt(det)
+    t = math.sqrt(a + c + 2 * sq)
+    return np.array([[c + sq, -b], [-b, a + sq]]) / (sq * t)
 
 
 def _refit_fallback(image_H_sign: np.ndarray, cents: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -107,13 +107,13 @@ def test_centre_accuracy_on_clean_tilted_crops():
         res = decode_roi(crop.image)
         assert res.code == code
         errors.append(np.subtract(res.keypoints_px["center"], crop.keypoints_px["center"]))
-        if code.count("1") >= 2:
-            # Four or more parts fix a full homography: its disc matches the truth.
-            assert np.hypot(*np.subtract(res.ellipse[0], crop.ellipse[0])) < 0.5
-            assert res.ellipse[1][0] == pytest.approx(crop.ellipse[1][0], rel=0.02)
+        # The disc of the fitted homography (from the parts, or from the rim
+        # for codes with fewer than two white slots) matches the truth.
+        assert np.hypot(*np.subtract(res.ellipse[0], crop.ellipse[0])) < 0.5
+        assert res.ellipse[1][0] == pytest.approx(crop.ellipse[1][0], rel=0.02)
     errors = np.array(errors)
-    assert np.hypot(errors[:, 0], errors[:, 1]).max() < 0.2
-    assert math.sqrt((errors**2).sum(axis=1).mean()) < 0.1
+    assert np.hypot(errors[:, 0], errors[:, 1]).max() < 0.15
+    assert math.sqrt((errors**2).sum(axis=1).mean()) < 0.08
 
 
 def test_perspective_correction_removes_centroid_bias():
