@@ -7,6 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from estimator.camera import pinhole_camera
 from signpose.errors import InputError
@@ -141,3 +143,36 @@ def test_camera_size_mismatch():
     check_source_camera("flight.mp4", camera, (640, 480))
     with pytest.raises(InputError, match=r"flight.mp4: images are 96x64 .* 640x480"):
         check_source_camera("flight.mp4", camera, (96, 64))
+
+
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    stamps=st.lists(st.integers(-(2**62), 2**62), min_size=1, max_size=8, unique=True),
+    junk=st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=20),
+)
+def test_times_csv_parser(tmp_path_factory, stamps, junk):
+    """Valid CSVs come back sorted by time; a corrupted stamp is one InputError naming the line."""
+    from signpose.inputs import _read_times_csv
+
+    folder = tmp_path_factory.mktemp("csv")
+    files = {f"{i}.png": folder / f"{i}.png" for i in range(len(stamps))}
+    rows = "".join(f"{i}.png,{t}\n" for i, t in enumerate(stamps))
+    path = folder / "frames.csv"
+    path.write_text("filename,stamp_ns\n" + rows)
+    items = _read_times_csv(path, files)
+    assert [t for _, t in items] == sorted(stamps)
+    bad = "".join(c for c in junk if c not in ',"\r\n\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029').strip()
+    try:
+        int(bad)
+        return  # still a valid integer
+    except ValueError:
+        pass
+    path.write_text("filename,stamp_ns\n" + rows + f"0.png,{bad}\n", encoding="utf-8")
+    if not bad:
+        with pytest.raises(InputError, match=r"line \d+"):
+            _read_times_csv(path, files)
+        return
+    with pytest.raises(InputError, match=rf"frames.csv: line {len(stamps) + 2}: "):
+        _read_times_csv(path, files)
