@@ -465,14 +465,11 @@ def write_result_mcap(
     world = sign_map.frame
     t0 = frames[0].stamp_ns if frames else 0
     tf_name = "smoothed" if "smoothed" in trajectories else next(iter(trajectories), None)
-    by_stamp: dict[str, dict[int, np.ndarray]] = {}
+    by_stamp: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name, traj in trajectories.items():
         Ts = traj.world_T_cam()
-        by_stamp[name] = {
-            int(round(t * 1e9)): T
-            for t, T in zip(traj.stamps_s, Ts, strict=True)
-            if np.all(np.isfinite(T))
-        }
+        ok = np.all(np.isfinite(Ts.reshape(len(Ts), -1)), axis=1)
+        by_stamp[name] = (np.round(traj.stamps_s[ok] * 1e9).astype(np.int64), Ts[ok])
     image_iter = iter(images) if images is not None else None
     with McapJsonWriter(path) as writer:
         writer.write(SCENE_TOPIC, "SceneUpdate", scene_update(t0, sign_map, trajectories), t0)
@@ -486,8 +483,8 @@ def write_result_mcap(
                     msg = compressed_image(item[0], item[1], quality=jpeg_quality)
                     writer.write(IMAGE_TOPIC, "CompressedImage", msg, item[0])
             writer.write(ANNOTATIONS_TOPIC, "ImageAnnotations", image_annotations(obs), t)
-            for name, poses in by_stamp.items():
-                T = _nearest(poses, t)
+            for name, (stamps_ns, poses) in by_stamp.items():
+                T = _nearest(stamps_ns, poses, t)
                 if T is None:
                     continue
                 writer.write(f"/signpose/{name}/pose", "PoseInFrame", pose_in_frame(t, world, T), t)
@@ -497,15 +494,18 @@ def write_result_mcap(
                     )
 
 
-def _nearest(poses: dict[int, np.ndarray], stamp_ns: int, tol_ns: int = 1_000_000):
-    T = poses.get(stamp_ns)
-    if T is not None:
-        return T
-    for dt in range(-tol_ns, tol_ns + 1, 1000):  # rounding of stamps_s [s] to ns
-        T = poses.get(stamp_ns + dt)
-        if T is not None:
-            return T
-    return None
+def _nearest(stamps_ns: np.ndarray, poses: np.ndarray, stamp_ns: int, tol_ns: int = 1_000_000):
+    """The pose at ``stamp_ns`` (within ``tol_ns``: stamps went through seconds), or None."""
+    if len(stamps_ns) == 0:
+        return None
+    i = int(np.searchsorted(stamps_ns, stamp_ns))
+    best = None
+    for j in (i - 1, i):
+        if 0 <= j < len(stamps_ns):
+            dt = abs(int(stamps_ns[j]) - int(stamp_ns))
+            if dt <= tol_ns and (best is None or dt < best[0]):
+                best = (dt, j)
+    return None if best is None else poses[best[1]]
 
 
 # --------------------------------------------------------------------------- reading
