@@ -363,6 +363,7 @@ def observe(
                 size_checked = True
                 if det is None:
                     det = make_detector(s)
+                    t1 = time.perf_counter()  # loading the model is not detection time
             result = None
             if tracking and prev_T is not None:
                 predictions = predict_signs(
@@ -400,7 +401,7 @@ def observe(
         if stream is not None:
             kept = stream.finish_partial()
             if kept is not None:
-                log.warning("interrupted: %d complete frames kept in %s", stream.lines, kept)
+                log.info("interrupted: %d complete frames kept in %s", stream.lines, kept)
         raise
     except BaseException:
         bar.close()
