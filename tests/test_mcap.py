@@ -316,3 +316,44 @@ def test_writer_abort_leaves_no_file(tmp_path):
         w.write("/p", "PoseInFrame", mcap_io.pose_in_frame(0, "w", np.eye(4)), 0)
         raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
+
+
+_COMPRESSED_MSGDEF = """std_msgs/Header header
+string format
+uint8[] data
+================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+
+
+def test_ros2_compressed_image(tmp_path):
+    import cv2
+    from mcap_ros2.writer import Writer
+
+    rng = np.random.default_rng(8)
+    img = rng.integers(0, 255, (12, 16, 3), dtype=np.uint8)
+    ok, png = cv2.imencode(".png", img)
+    assert ok
+    path = tmp_path / "ros2c.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        schema = w.register_msgdef("sensor_msgs/msg/CompressedImage", _COMPRESSED_MSGDEF)
+        for i in range(2):
+            msg = {
+                "header": {"stamp": {"sec": 7, "nanosec": i}, "frame_id": "cam"},
+                "format": "png",
+                "data": png.tobytes(),
+            }
+            w.write_message("/cam/compressed", schema, msg, log_time=i + 1)
+        w.finish()
+    source = open_source(path)
+    assert source.camera is None
+    frames = list(source)
+    assert [f.stamp_ns for f in frames] == [7_000_000_000, 7_000_000_001]
+    np.testing.assert_array_equal(frames[0].image, img)  # PNG is lossless
