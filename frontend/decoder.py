@@ -175,6 +175,9 @@ class DecoderSettings:
         min_bit_margin: least normalised margin of each slot's class decision.
         min_direction_margin: least cost margin between the best and the
             second-best rotation of the slot pattern.
+        min_axis_ratio: least minor/major axis ratio of the disc's image
+            (0.4: about 66 degrees off the sign's normal).
+        min_fill: least disc diameter as a fraction of the crop's larger side.
         max_black_frac: a black slot's samples stay below this white fraction.
         min_white_frac: a white slot's samples stay above this white fraction.
         edge_margin_px: the sign's rim must stay this far inside the crop [px].
@@ -194,6 +197,8 @@ class DecoderSettings:
     min_contrast: float = 25.0
     min_bit_margin: float = 0.12
     min_direction_margin: float = 0.15
+    min_axis_ratio: float = 0.4
+    min_fill: float = 0.25
     max_black_frac: float = 0.35
     min_white_frac: float = 0.55
     edge_margin_px: float = 0.0
@@ -711,7 +716,18 @@ def _decode_region_contour(
         ring_sorted = sorted(ring, key=lambda k: -holes[k].aspect / holes[k].area)
         for di in ring_sorted[: settings.max_direction_candidates]:
             res = _try_hypothesis(
-                g, holes, li, di, rel, radius, whitener, touches, rim_contour, allowed, settings
+                g,
+                holes,
+                li,
+                di,
+                rel,
+                radius,
+                whitener,
+                touches,
+                rim_contour,
+                area if disc_like else None,
+                allowed,
+                settings,
             )
             if res.code is not None or res.reason == "code_not_in_map":
                 return res
@@ -730,6 +746,7 @@ def _try_hypothesis(
     whitener: np.ndarray,
     touches_border: bool,
     rim_contour: np.ndarray | None,
+    disc_area: float | None,
     allowed: frozenset[str] | None,
     settings: DecoderSettings,
 ) -> DecodeResult:
@@ -754,6 +771,21 @@ def _try_hypothesis(
     fallback = _affine_from_two(holes[li].centroid, holes[di].centroid, whitener)
     image_H_sign, _ = _fit_parts(parts, measured, fallback, passes=0)
     if image_H_sign is None:
+        return _fail("no_location")
+    # A plausible view: not beyond ~75 degrees, and a disc that fills a good
+    # part of the crop (a region of interest is "almost full of the sign").
+    # Collapsed hypotheses (e.g. a location square split by a cable taken
+    # for a sign) squeeze all samples onto a line and must not get that far.
+    ellipse = _safe_disc_ellipse(image_H_sign)
+    if ellipse is None:
+        return _fail("no_location")
+    (_, _), (major, minor), _ = ellipse
+    if not (
+        minor >= settings.min_axis_ratio * major
+        and major >= max(settings.min_sign_px, settings.min_fill * max(w, h))
+    ):
+        return _fail("no_location")
+    if disc_area is not None and not 0.6 < math.pi * major * minor / 4 / disc_area < 1.6:
         return _fail("no_location")
     rim = _project(image_H_sign, _RIM)
     if not _inside(rim, w, h, settings.edge_margin_px):
@@ -813,7 +845,9 @@ def _try_hypothesis(
             shift = fixed[0] - _project(h_rim, _PART_CENTRES[:1])[0]
             image_H_sign = np.array([[1, 0, shift[0]], [0, 1, shift[1]], [0, 0, 1.0]]) @ h_rim
     keypoints = {n: (float(p[0]), float(p[1])) for n, p in zip(kp_names, uv, strict=True)}
-    ellipse = disc_ellipse(image_H_sign, 1.0)
+    ellipse = _safe_disc_ellipse(image_H_sign)
+    if ellipse is None:
+        return _fail("inconsistent")
     scale_px = ellipse[1][1]
     sigma = _sigma_px(rms, len(use), scale_px)
     quality = float(
@@ -899,6 +933,13 @@ def _whitener_sym(m: np.ndarray) -> np.ndarray | None:
     sq = math.sqrt(det)
     t = math.sqrt(a + c + 2 * sq)
     return np.array([[c + sq, -b], [-b, a + sq]]) / (sq * t)
+
+
+def _safe_disc_ellipse(image_H_sign: np.ndarray) -> Ellipse | None:
+    try:
+        return disc_ellipse(image_H_sign, 1.0)
+    except (ValueError, ZeroDivisionError):
+        return None
 
 
 def _refit_fallback(image_H_sign: np.ndarray, cents: np.ndarray, valid: np.ndarray) -> np.ndarray:

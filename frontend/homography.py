@@ -99,16 +99,24 @@ def ellipse_from_conic(c: np.ndarray) -> Ellipse:
     Angle: of the major axis, from the u axis toward +v, in [0, 180)
     (cv2.RotatedRect convention, axes given major first). Closed form: the
     2x2 algebra is cheaper in plain floats than through numpy.linalg.
+
+    Raises:
+        ValueError: the conic is not a real ellipse (e.g. the image of a disc
+            that the horizon line crosses).
     """
     a, b, d = float(c[0, 0]), float(c[0, 1]), float(c[1, 1])
     e, f, g = float(c[0, 2]), float(c[1, 2]), float(c[2, 2])
     det = a * d - b * b
+    if det <= 0:
+        raise ValueError("conic is not an ellipse")
     cx = (b * f - d * e) / det
     cy = (b * e - a * f) / det
     k = -(a * cx * cx + 2 * b * cx * cy + d * cy * cy + 2 * e * cx + 2 * f * cy + g)
     m = 0.5 * (a + d)
     r = math.sqrt(0.25 * (a - d) ** 2 + b * b)
     lo, hi = (m - r) / k, (m + r) / k
+    if not (lo > 0 and hi > 0):
+        raise ValueError("conic is not a real ellipse")
     # Major axis: eigenvector of the smaller eigenvalue (m - r).
     angle = 0.5 * math.degrees(math.atan2(2 * b, a - d)) + 90.0
     return (cx, cy), (2.0 / math.sqrt(lo), 2.0 / math.sqrt(hi)), angle % 180.0
