@@ -21,6 +21,7 @@ projected geometry passed in by the caller includes the distortion.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -125,6 +126,8 @@ class Backdrop:
     """Once-per-flight background layers: sky panorama, ground texture, noise bank.
 
     Built from a seed; per frame ``sky_and_ground`` re-projects them for a pose.
+    The textures depend only on the seed and are shared between backdrops
+    (cached per process), the noise bank is built on first use.
 
     Args:
         width, height: frame size [px].
@@ -143,39 +146,17 @@ class Backdrop:
         self.ground_m_per_px = float(ground_m_per_px)
         self.seed = int(seed)
         self.haze_bgr = np.array([222.0, 214.0, 205.0], np.float32)
-        self._sky: np.ndarray | None = None
-        self._ground: np.ndarray | None = None
         self._noise: np.ndarray | None = None
-        self._sky_u8: np.ndarray | None = None
-        self._ground_u8: np.ndarray | None = None
-
-    # Layers are built on first use, each from its own seeded stream, so a
-    # flight that never needs one (clean frames) does not pay for it.
-    @property
-    def sky(self) -> np.ndarray:
-        """(SKY_H, SKY_W, 3) float32 BGR panorama: azimuth across, elevation 90..0 down."""
-        if self._sky is None:
-            self._sky = self._make_sky(np.random.default_rng([self.seed, 1]))
-        return self._sky
 
     @property
     def sky_u8(self) -> np.ndarray:
-        if self._sky_u8 is None:
-            self._sky_u8 = np.clip(np.rint(self.sky), 0, 255).astype(np.uint8)
-        return self._sky_u8
+        """(SKY_H, SKY_W, 3) uint8 BGR panorama: azimuth across, elevation 90..0 down."""
+        return _sky_texture(self.seed)
 
     @property
     def ground_u8(self) -> np.ndarray:
-        if self._ground_u8 is None:
-            self._ground_u8 = np.clip(np.rint(self.ground), 0, 255).astype(np.uint8)
-        return self._ground_u8
-
-    @property
-    def ground(self) -> np.ndarray:
-        """(GROUND_PX, GROUND_PX, 3) float32 BGR ground texture, ``ground_m_per_px`` per texel."""
-        if self._ground is None:
-            self._ground = self._make_ground(np.random.default_rng([self.seed, 2]))
-        return self._ground
+        """(GROUND_PX, GROUND_PX, 3) uint8 BGR ground texture, ``ground_m_per_px`` per texel."""
+        return _ground_texture(self.seed)
 
     @property
     def noise_u8(self) -> np.ndarray:
@@ -186,49 +167,6 @@ class Backdrop:
             )
             self._noise = np.clip(128.0 + 16.0 * z, 0, 255).astype(np.uint8)
         return self._noise
-
-    def _make_sky(self, rng: np.random.Generator) -> np.ndarray:
-        h, w = self.SKY_H, self.SKY_W
-        el = (1.0 - (np.arange(h, dtype=np.float32) + 0.5) / h)[:, None]  # 1 at zenith, 0 horizon
-        zenith = np.array([190.0, 140.0, 95.0], np.float32)
-        horizon = np.array([225.0, 215.0, 205.0], np.float32)
-        t = np.sqrt(el)[..., None]
-        sky = horizon * (1 - t) + zenith * t
-        sky = np.broadcast_to(sky, (h, w, 3)).copy()
-        clouds = _value_noise(rng, (h, w), [4, 8, 16, 32, 64])
-        cover = np.clip((clouds - 0.05) * 2.5, 0.0, 1.0)[..., None] * 0.85
-        cloud_bgr = np.array([235.0, 235.0, 235.0], np.float32) - 25.0 * np.clip(
-            clouds[..., None], 0, 1
-        )
-        return (sky * (1 - cover) + cloud_bgr * cover).astype(np.float32)
-
-    def _make_ground(self, rng: np.random.Generator) -> np.ndarray:
-        n = self.GROUND_PX
-        base = _value_noise(rng, (n, n), [8, 16, 32, 64, 128, 256])
-        fields = _value_noise(rng, (n, n), [6, 12])
-        grass = np.array([60.0, 120.0, 95.0], np.float32)
-        soil = np.array([75.0, 105.0, 135.0], np.float32)
-        mix = np.clip(0.5 + 1.5 * fields, 0, 1)[..., None]
-        tex = grass * (1 - mix) + soil * mix
-        tex *= (1.0 + 0.35 * base)[..., None]
-        # A few tracks across the fields, drawn with their wrapped copies (seamless tile).
-        for _ in range(6):
-            p = rng.uniform(0, n, 2)
-            a = rng.uniform(0, np.pi)
-            d = np.array([np.cos(a), np.sin(a)]) * n * 2
-            width = int(rng.integers(3, 9))
-            for ox in (-n, 0, n):
-                for oy in (-n, 0, n):
-                    q = p + [ox, oy]
-                    cv2.line(
-                        tex,
-                        tuple(int(v) for v in q - d),
-                        tuple(int(v) for v in q + d),
-                        (150.0, 165.0, 175.0),
-                        width,
-                        cv2.LINE_AA,
-                    )
-        return cv2.GaussianBlur(tex, (0, 0), 0.8)
 
     def sky_and_ground(self, K: np.ndarray, world_T_cam: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8 BGR sky and ground as seen from ``world_T_cam`` (world z up).
@@ -268,8 +206,10 @@ class Backdrop:
         gx = np.clip((cam[0] + s * dx) / self.ground_m_per_px, -lim, lim)
         gy = np.clip((cam[1] + s * dy) / self.ground_m_per_px, -lim, lim)
         haze = 1.0 - np.exp(-(s * horiz) / 900.0)
+        # Poor man's mipmap: far ground is sampled from a blurred copy (no aliasing).
+        far = np.clip((s * horiz - 60.0) / 200.0, 0.0, 1.0)
         w_sky = np.clip(0.5 + el / math.radians(0.5), 0.0, 1.0)
-        coarse = np.stack([sky_x, sky_y, gx, gy, w_sky, haze], axis=-1).astype(np.float32)
+        coarse = np.stack([sky_x, sky_y, gx, gy, w_sky, haze, far], axis=-1).astype(np.float32)
         fine = cv2.resize(coarse[..., :4], (bw, bh), interpolation=cv2.INTER_LINEAR)
         weights = cv2.resize(coarse[..., 4:], (bw, bh), interpolation=cv2.INTER_LINEAR)
         # Wrap into the textures here: remap's border handling is a slow per-pixel path.
@@ -280,13 +220,81 @@ class Backdrop:
             self.sky_u8, sky_x, fine[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP
         )
         ground = cv2.remap(self.ground_u8, gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-        w_sky, haze = weights[..., 0], weights[..., 1]
+        ground_far = cv2.remap(
+            _ground_texture_far(self.seed), gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP
+        )
+        w_sky, haze, far = weights[..., 0], weights[..., 1], weights[..., 2]
+        ground = cv2.blendLinear(ground, ground_far, 1.0 - far, far)
         hazy = np.empty_like(ground)
         hazy[:] = np.rint(self.haze_bgr).astype(np.uint8)
         ground = cv2.blendLinear(ground, hazy, 1.0 - haze, haze)
         small = cv2.blendLinear(sky, ground, w_sky, 1.0 - w_sky)
         big = cv2.resize(small, (bw * sc, bh * sc), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(big[: self.height, : self.width])
+
+
+@functools.lru_cache(maxsize=4)
+def _sky_texture(seed: int) -> np.ndarray:
+    """(SKY_H, SKY_W, 3) uint8 BGR panorama: azimuth across, elevation 90..0 down (read-only)."""
+    rng = np.random.default_rng([seed, 1])
+    h, w = Backdrop.SKY_H, Backdrop.SKY_W
+    el = (1.0 - (np.arange(h, dtype=np.float32) + 0.5) / h)[:, None]  # 1 at zenith, 0 horizon
+    zenith = np.array([190.0, 140.0, 95.0], np.float32)
+    horizon = np.array([225.0, 215.0, 205.0], np.float32)
+    t = np.sqrt(el)[..., None]
+    sky = horizon * (1 - t) + zenith * t
+    sky = np.broadcast_to(sky, (h, w, 3)).copy()
+    clouds = _value_noise(rng, (h, w), [4, 8, 16, 32, 64])
+    cover = np.clip((clouds - 0.05) * 2.5, 0.0, 1.0)[..., None] * 0.85
+    cloud_bgr = np.array([235.0, 235.0, 235.0], np.float32) - 25.0 * np.clip(
+        clouds[..., None], 0, 1
+    )
+    out = np.clip(np.rint(sky * (1 - cover) + cloud_bgr * cover), 0, 255).astype(np.uint8)
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _ground_texture(seed: int) -> np.ndarray:
+    """(GROUND_PX, GROUND_PX, 3) uint8 BGR seamless ground texture (read-only)."""
+    rng = np.random.default_rng([seed, 2])
+    n = Backdrop.GROUND_PX
+    base = _value_noise(rng, (n, n), [8, 16, 32, 64, 128, 256])
+    fields = _value_noise(rng, (n, n), [6, 12])
+    grass = np.array([60.0, 120.0, 95.0], np.float32)
+    soil = np.array([75.0, 105.0, 135.0], np.float32)
+    mix = np.clip(0.5 + 1.5 * fields, 0, 1)[..., None]
+    tex = grass * (1 - mix) + soil * mix
+    tex *= (1.0 + 0.35 * base)[..., None]
+    # A few tracks across the fields, drawn with their wrapped copies (seamless tile).
+    for _ in range(6):
+        p = rng.uniform(0, n, 2)
+        a = rng.uniform(0, np.pi)
+        d = np.array([np.cos(a), np.sin(a)]) * n * 2
+        width = int(rng.integers(3, 9))
+        for ox in (-n, 0, n):
+            for oy in (-n, 0, n):
+                q = p + [ox, oy]
+                cv2.line(
+                    tex,
+                    tuple(int(v) for v in q - d),
+                    tuple(int(v) for v in q + d),
+                    (150.0, 165.0, 175.0),
+                    width,
+                    cv2.LINE_AA,
+                )
+    tex = cv2.GaussianBlur(tex, (0, 0), 0.8)
+    out = np.clip(np.rint(tex), 0, 255).astype(np.uint8)
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _ground_texture_far(seed: int) -> np.ndarray:
+    """The ground texture blurred for distant, grazing views (read-only)."""
+    out = cv2.GaussianBlur(_ground_texture(seed), (0, 0), 6.0, borderType=cv2.BORDER_WRAP)
+    out.flags.writeable = False
+    return out
 
 
 def line_kernel(motion_px: np.ndarray) -> np.ndarray | None:
