@@ -692,6 +692,20 @@ def _decode_region_contour(
     x, y, bw, bh = cv2.boundingRect(outer)
     touches = x <= 0 or y <= 0 or x + bw >= w or y + bh >= h
     disc_like = det > 0 and abs(area / (4 * math.pi * math.sqrt(det)) - 1.0) < 0.12 and not touches
+    if disc_like:
+        # A square passes the area test too: require a steady radius once the
+        # moments' ellipse is made a circle (a square's varies by +-20 %).
+        wt = _whitener(outer_cov, 1.0)
+        if wt is None:
+            disc_like = False
+        else:
+            # Vertices and edge midpoints: the contour is chain-compressed, so
+            # a square is four corners.
+            pts = outer.reshape(-1, 2).astype(float)
+            pts = np.concatenate([pts, 0.5 * (pts + np.roll(pts, 1, axis=0))])
+            q = (pts - outer_c) @ wt.T
+            rad = np.sqrt((q * q).sum(axis=1))
+            disc_like = float(rad.std()) < 0.07 * float(rad.mean())
     centre_ref = outer_c if disc_like else crop_centre
     rim_contour = outer if disc_like else None
     # Step 5: the hole closest to the centre of the sign's extent.
