@@ -439,6 +439,7 @@ def _fit_parts(
     measured_px: np.ndarray,
     fallback: np.ndarray | None,
     passes: int = 2,
+    want_residual: bool = True,
 ) -> tuple[np.ndarray | None, float]:
     """Homography with predicted rectangle centroids matching ``measured_px``.
 
@@ -470,6 +471,8 @@ def _fit_parts(
             if h_new is None:
                 break
             h = h_new
+    if n <= 4 or not want_residual:
+        return h, float("nan")  # an exact fit has no residual to report
     proj_quads = _project(h, quads.reshape(-1, 2)).reshape(quads.shape)
     resid = polygon_centroids(proj_quads) - measured_px
     rms = float(np.sqrt((resid**2).sum(axis=1).mean()))
@@ -519,7 +522,7 @@ def _sigma_px(residual_px: float, n_parts: int, scale_px: float) -> float:
     the homography needs; a size term covers sampling/blur errors that the
     residual cannot see (few parts, or errors common to all parts).
     """
-    floor = 0.03 + 1.5 / max(scale_px, 1.0)
+    floor = 0.05 + 2.5 / max(scale_px, 1.0)
     if n_parts > 4 and math.isfinite(residual_px):
         dof_scale = math.sqrt(2 * n_parts / (2 * n_parts - 8))
         return float(math.hypot(floor, residual_px * dof_scale))
@@ -783,7 +786,7 @@ def _try_hypothesis(
         [holes[li].centroid, holes[di].centroid] + [holes[slots[s]].centroid for s in sorted(slots)]
     )
     fallback = _affine_from_two(holes[li].centroid, holes[di].centroid, whitener)
-    image_H_sign, _ = _fit_parts(parts, measured, fallback, passes=0)
+    image_H_sign, _ = _fit_parts(parts, measured, fallback, passes=0, want_residual=False)
     if image_H_sign is None:
         return _fail("no_location")
     # A plausible view: not beyond ~75 degrees, and a disc that fills a good
