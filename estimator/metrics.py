@@ -10,8 +10,10 @@ Definitions:
       ``ate_rmse_aligned`` after the rigid SE(3) alignment (Umeyama, no scale)
       of the estimated positions onto the ground truth (evo_ape -a).
     * ``rpe_trans_per_m``: relative pose error, translation part, with the
-      step measured in metres travelled, as ``evo_rpe --delta 1 --delta_unit m``
-      (all_pairs off): walking the *ground truth* from its first associated
+      step measured in metres travelled, as ``evo_rpe tum GT EST --delta 1
+      --delta_unit m --pairs_from_reference`` (consecutive pairs; note evo's
+      default picks the pairs on the estimate's path, which a jittery estimate
+      lengthens): walking the *ground truth* from its first associated
       pose, a checkpoint is placed each time the accumulated path length
       reaches ``delta_m`` (then the accumulator restarts); for each pair of
       consecutive checkpoints (i, j) the error is

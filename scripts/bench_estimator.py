@@ -1,0 +1,104 @@
+#!/usr/bin/env python
+"""Benchmark the smoother on a long simulated flight (10 signs, 1920x1080).
+
+Reports: batch Levenberg-Marquardt seconds (graph building + optimisation),
+the marginal covariances' seconds separately, and iSAM2's median update time
+per frame (including building that frame's factors and reading its estimate).
+Initial values come from per-frame PnP (timed too). The flight is the
+lawnmower pattern in front of the demo map, 0.4 px keypoint noise, 30 fps.
+
+    .venv/bin/python scripts/bench_estimator.py [--frames 10000] [--motion ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+from estimator.camera import pinhole_camera
+from estimator.perframe import run_per_frame
+from estimator.smoother import (
+    MOTION_MODELS,
+    SmootherSettings,
+    collect_measurements,
+    default_pose,
+    smooth_batch,
+    smooth_isam2,
+)
+from estimator.synthetic import SyntheticSettings, paper_like_frames
+from maps.loader import bundled_map_path, load_map
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=10000)
+    ap.add_argument("--isam-frames", type=int, default=None, help="frames for iSAM2 (default all)")
+    ap.add_argument("--motion", choices=MOTION_MODELS, default=SmootherSettings().motion)
+    ap.add_argument("--sigmas", action="store_true", help="also time the marginals")
+    ap.add_argument("--no-isam", action="store_true")
+    args = ap.parse_args(argv)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    sign_map = load_map(bundled_map_path())
+    camera = pinhole_camera(1920, 1080, 60.0)
+    rng = np.random.default_rng(0)
+    t = time.perf_counter()
+    frames, gt, _ = paper_like_frames(
+        sign_map, camera, args.frames, rng, SyntheticSettings(sigma_px=0.4), flight="lawnmower"
+    )
+    t_syn = time.perf_counter() - t
+    meas = collect_measurements(frames, sign_map, camera)
+    print(
+        f"# {args.frames} frames, {len(sign_map.signs)} signs, {len(meas.landmark_code)} "
+        f"landmarks, {len(meas.frame)} projection factors, motion {args.motion}; "
+        f"load average {load:.1f} on {os.cpu_count()} cores (synthesis {t_syn:.1f} s)"
+    )
+    t = time.perf_counter()
+    pnp = run_per_frame(frames, sign_map, camera, "pnp")
+    t_pnp = time.perf_counter() - t
+    print(
+        f"per-frame PnP (initial values): {t_pnp:.2f} s ({1e3 * t_pnp / args.frames:.2f} ms/frame)"
+    )
+    init = [p.world_T_cam for p in pnp]
+    settings = SmootherSettings(motion=args.motion, compute_sigmas=False)
+    default = default_pose(sign_map)
+    r = smooth_batch(meas, gt.stamps_s, init, camera, settings, default)
+    err = np.abs(r.world_T_cam[:, :3, 3] - gt.world_t_cam).mean(axis=0)
+    print(
+        f"batch LM: {r.seconds:.2f} s (build {r.extra['build_s']:.2f} s, optimise "
+        f"{r.extra['optimize_s']:.2f} s, {r.iterations} iterations); MAE xyz {np.round(err, 4)}"
+    )
+    if args.sigmas:
+        graph_s = SmootherSettings(motion=args.motion, compute_sigmas=True)
+        t = time.perf_counter()
+        r2 = smooth_batch(meas, gt.stamps_s, init, camera, graph_s, default)
+        print(
+            f"marginals (gtsam.Marginals, all {args.frames} poses): {r2.sigma_seconds:.2f} s "
+            f"(whole run {time.perf_counter() - t:.2f} s)"
+        )
+    if not args.no_isam:
+        n = args.isam_frames or args.frames
+        sub = collect_measurements(frames[:n], sign_map, camera)
+        ri = smooth_isam2(sub, gt.stamps_s[:n], init[:n], camera, settings, default)
+        ms = ri.per_frame_ms
+        q = np.percentile(ms, [50, 90, 99])
+        last = np.median(ms[-min(500, n) :])
+        print(
+            f"iSAM2 over {n} frames: median {q[0]:.2f} ms/frame (p90 {q[1]:.2f}, p99 {q[2]:.2f}, "
+            f"median of the last 500 {last:.2f}); total {ri.seconds:.1f} s incl. final convergence"
+        )
+        d = (
+            np.abs(ri.world_T_cam[:, :3, 3] - r.world_T_cam[:n, :3, 3]).max()
+            if n == args.frames
+            else None
+        )
+        if d is not None:
+            print(f"iSAM2 final vs batch: max position difference {d * 1e3:.3f} mm")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
