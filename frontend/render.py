@@ -332,36 +332,47 @@ def _draw_lines(image: np.ndarray, lines: list[ProjectedLine], mask_mode: bool =
     the line's colour, faded toward the sky's haze for sub-pixel widths.
     Consecutive segments of equal drawn width go to one ``cv2.polylines`` call.
     """
+    if not lines:
+        return
     h, w = image.shape[:2]
     shift = 4
     scale = 1 << shift
     lim = 8 * max(h, w)
-    haze = (215.0, 210.0, 205.0)
-    for line in lines:
-        pts = np.asarray(line.points_px, dtype=float).reshape(-1, 2)
-        a, b = pts[:-1], pts[1:]
-        inside = ~(
-            (np.maximum(a[:, 0], b[:, 0]) < -20)
-            | (np.minimum(a[:, 0], b[:, 0]) > w + 20)
-            | (np.maximum(a[:, 1], b[:, 1]) < -20)
-            | (np.minimum(a[:, 1], b[:, 1]) > h + 20)
-        )
-        widths = np.asarray(line.widths_px, dtype=float)
-        thick = np.maximum(1, np.rint(widths)).astype(int)
-        fade = np.round(np.minimum(widths, 1.0), 1)
-        ip = np.round(np.clip(pts, -lim, lim) * scale).astype(np.int32)
-        # Runs of consecutive visible segments with the same drawn width and fade.
-        key = np.where(inside, thick * 100 + np.rint(fade * 10), -1)
-        starts = np.flatnonzero(np.diff(key, prepend=-2) != 0)
-        ends = np.append(starts[1:], len(key))
-        for i, j in zip(starts, ends, strict=True):
-            if key[i] < 0:
-                continue
-            if mask_mode:
-                color: tuple[float, ...] = (255.0 * fade[i],)
-            else:
-                color = tuple(hz + fade[i] * (c - hz) for c, hz in zip(line.bgr, haze, strict=True))
-            cv2.polylines(image, [ip[i : j + 1]], False, color, int(thick[i]), cv2.LINE_AA, shift)
+    haze = np.array([215.0, 210.0, 205.0])
+    # All segments of all lines at once; a segment's key changes between lines.
+    n_pts = np.array([len(ln.points_px) for ln in lines])
+    pts = np.concatenate([np.asarray(ln.points_px, dtype=float).reshape(-1, 2) for ln in lines])
+    widths = np.concatenate(
+        [np.append(np.asarray(ln.widths_px, dtype=float), 0.0) for ln in lines]
+    )  # one dummy segment from each line's last point to the next line's first
+    line_id = np.repeat(np.arange(len(lines)), n_pts)
+    a, b = pts[:-1], pts[1:]
+    same_line = line_id[:-1] == line_id[1:]
+    inside = same_line & ~(
+        (np.maximum(a[:, 0], b[:, 0]) < -20)
+        | (np.minimum(a[:, 0], b[:, 0]) > w + 20)
+        | (np.maximum(a[:, 1], b[:, 1]) < -20)
+        | (np.minimum(a[:, 1], b[:, 1]) > h + 20)
+    )
+    widths = widths[:-1]
+    thick = np.maximum(1, np.rint(widths)).astype(np.int64)
+    fade = np.round(np.minimum(widths, 1.0), 1)
+    ip = np.round(np.clip(pts, -lim, lim) * scale).astype(np.int32)
+    # Runs of consecutive visible segments of one line with the same drawn width and fade.
+    key = np.where(
+        inside, (line_id[:-1] * 1000 + thick) * 100 + np.rint(fade * 10).astype(np.int64), -1
+    )
+    starts = np.flatnonzero(np.diff(key, prepend=-2) != 0)
+    ends = np.append(starts[1:], len(key))
+    for i, j in zip(starts.tolist(), ends.tolist(), strict=True):
+        if key[i] < 0:
+            continue
+        f = float(fade[i])
+        if mask_mode:
+            color: tuple[float, ...] = (255.0 * f,)
+        else:
+            color = tuple((haze + f * (np.asarray(lines[line_id[i]].bgr) - haze)).tolist())
+        cv2.polylines(image, [ip[i : j + 1]], False, color, int(thick[i]), cv2.LINE_AA, shift)
 
 
 def _bbox(polygons: list[np.ndarray], margin: int, w: int, h: int) -> tuple[int, int, int, int]:

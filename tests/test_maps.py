@@ -149,7 +149,7 @@ _maps = st.one_of(
 )
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(_maps)
 def test_parse_map_raises_only_input_error(data):
     try:
