@@ -751,17 +751,29 @@ class FrameWriter(Protocol):
     """Where rendered frames go. Use as a context manager: on an exception the
     partial output is removed; on success ``close`` publishes it atomically.
 
-    Implement ``write`` and ``close`` (and ``abort``) for another container,
-    e.g. MCAP with foxglove.CompressedImage.
+    Implement ``write``, ``close``, ``abort`` and the context-manager pair for
+    another container (``signpose.mcap_io.McapFrameWriter`` does, for MCAP with
+    foxglove.CompressedImage), then return it from ``make_frame_writer`` and add
+    its name to ``FORMATS``.
     """
 
     path: Path
 
-    def write(self, frame_index: int, stamp_ns: int, bgr: np.ndarray) -> None: ...
+    def write(self, frame_index: int, stamp_ns: int, bgr: np.ndarray) -> None:
+        """Add frame ``frame_index`` ((H, W, 3) uint8 BGR) taken at ``stamp_ns``."""
+        ...
 
-    def close(self) -> Path: ...
+    def close(self) -> Path:
+        """Finish and publish the output; return its path."""
+        ...
 
-    def abort(self) -> None: ...
+    def abort(self) -> None:
+        """Remove the partial output."""
+        ...
+
+    def __enter__(self) -> FrameWriter: ...
+
+    def __exit__(self, exc_type, exc, tb) -> None: ...
 
 
 class _WriterBase:

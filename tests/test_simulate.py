@@ -1,6 +1,7 @@
 """Flight simulator: rendered geometry, outputs, determinism, errors, CLI."""
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -82,6 +83,39 @@ def test_location_square_centre_matches_projected_map_centre(demo_map, trajector
             assert err < 0.5, f"frame {i} sign {t.code}: centre off by {err:.3f} px"
             checked += 1
     assert checked >= 10
+
+
+def test_motion_blur_keeps_the_location_square_centre(demo_map):
+    """Blur is the symmetric exposure segment around the stamp: the centroid stays put."""
+    camera = simulated_camera(SimSettings())
+    scene = build_scene(demo_map, camera, background=False)
+    traj = make_trajectory("lawnmower", demo_map, 210, 30.0)
+    poses, stamps = traj.world_T_cam(), traj.stamps_s
+    opts = replace(clean_sim_options(), blur=True)
+    half = 0.5 / 30.0 / 2
+    checked, moved = 0, 0.0
+    for i in (30, 100):
+        exposure = (
+            pose_at(poses, stamps, stamps[i] - half),
+            pose_at(poses, stamps, stamps[i] + half),
+        )
+        sharp, _ = render_frame(
+            scene, poses[i], np.random.default_rng(0), options=clean_sim_options()
+        )
+        image, truths = render_frame(
+            scene, poses[i], np.random.default_rng(0), options=opts, exposure_poses=exposure
+        )
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        moved = max(moved, np.abs(image.astype(int) - sharp.astype(int)).max())
+        for t in truths:
+            radius = _window_radius(camera, poses[i], scene, t.code)
+            if radius is None or t.truncated:
+                continue
+            err = np.linalg.norm(white_centroid_px(gray, t.center_px, radius) - t.center_px)
+            assert err < 0.5, f"frame {i} sign {t.code}: centre off by {err:.3f} px"
+            checked += 1
+    assert checked >= 10
+    assert moved > 50  # the blur is real
 
 
 def test_location_square_size_in_image(demo_map):
