@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import os
 import shutil
@@ -65,6 +66,8 @@ from maps.loader import SignMap, write_map
 from signpose.errors import InputError, OutputError
 from signpose.fileio import atomic_path, atomic_write, ensure_dir
 from signpose.trajectories import TRAJECTORIES, make_trajectory
+
+log = logging.getLogger(__name__)
 
 FORMATS = ("mp4", "png", "mcap")
 LATTICE_BGR = (105.0, 110.0, 112.0)
@@ -866,7 +869,7 @@ def make_frame_writer(
     world_T_cams: np.ndarray | None = None,
     world_frame: str = "world",
 ) -> FrameWriter:
-    """The frame writer for ``fmt`` in ``out_dir``.
+    """The frame writer for ``fmt`` ("mp4", "png" or "mcap") in ``out_dir``.
 
     Args:
         fmt: one of ``FORMATS``.
@@ -883,6 +886,10 @@ def make_frame_writer(
         return Mp4Writer(Path(out_dir) / "video.mp4", fps, size)
     if fmt == "png":
         return PngWriter(Path(out_dir) / "frames")
+    if fmt == "mcap":
+        from signpose.mcap_io import McapFrameWriter
+
+        return McapFrameWriter(Path(out_dir) / "flight.mcap", camera, world_frame, world_T_cams)
     raise InputError(f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
 
 
@@ -954,6 +961,16 @@ def simulate(
         background=settings.background,
     )
     options = settings.render_options()
+    log.info(
+        "simulating %d frames %dx%d (%s, seed %d) of %d signs into %s",
+        settings.frames,
+        settings.width,
+        settings.height,
+        settings.trajectory,
+        settings.seed,
+        len(sign_map.signs),
+        out,
+    )
     half_exposure = 0.5 * settings.exposure_fraction / settings.fps
     lines: list[str] = []
     writer = make_frame_writer(

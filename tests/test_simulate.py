@@ -16,6 +16,7 @@ from maps.loader import load_map
 from signpose.cli import main
 from signpose.errors import InputError, OutputError
 from signpose.simulate import (
+    FORMATS,
     SimSettings,
     build_scene,
     lighting_at,
@@ -309,3 +310,36 @@ def test_cli_simulate(tmp_path, capsys):
     with pytest.raises(SystemExit) as info:
         main(args + ["--trajectory", "nowhere"])
     assert info.value.code == 2
+
+
+def test_render_module_keeps_to_the_image_side():
+    import ast
+    import inspect
+
+    import frontend.render
+
+    tree = ast.parse(inspect.getsource(frontend.render))
+    imported = {
+        (node.module if isinstance(node, ast.ImportFrom) else alias.name).split(".")[0]
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Import | ast.ImportFrom)
+        for alias in node.names
+    }
+    assert imported <= {
+        "__future__",
+        "functools",
+        "math",
+        "dataclasses",
+        "cv2",
+        "numpy",
+        "frontend",
+    }
+
+
+def test_every_format_writes_its_frames(demo_map, tmp_path):
+    names = {"mp4": "video.mp4", "png": "frames", "mcap": "flight.mcap"}
+    for fmt in FORMATS:
+        settings = SimSettings(frames=2, width=160, height=90, format=fmt)
+        res = simulate(demo_map, tmp_path / fmt, settings, progress=False)
+        assert res.frames_path == tmp_path / fmt / names[fmt]
+        assert res.frames_path.exists()

@@ -34,6 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--seed", type=int, default=d.seed, help="random seed (default 0)")
     p.add_argument("--format", choices=FORMATS, default=d.format, help="frame output format")
+    p.add_argument(
+        "--distance", type=float, default=d.distance_m, help="distance from the signs [m]"
+    )
     p.add_argument("--width", type=int, default=d.width, help="image width [px]")
     p.add_argument("--height", type=int, default=d.height, help="image height [px]")
     p.add_argument("--dirt", action="store_true", help="stains on some sign faces")
@@ -52,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
         fps=args.fps,
         trajectory=args.trajectory,
         seed=args.seed,
+        distance_m=args.distance,
         width=args.width,
         height=args.height,
         format=args.format,
