@@ -838,8 +838,16 @@ def _try_hypothesis(
         fallback = _refit_fallback(image_H_sign, cents, valid)
         passes = 1 if settings.perspective_correction else 0
         h_ref, rms = _fit_parts(use, cents[valid], fallback, passes=passes)
-        if h_ref is not None:
-            image_H_sign = h_ref
+        if h_ref is None:
+            return _fail("inconsistent", quality=reading.margin)
+        # The refined geometry must tell the same story: the sign centre stays
+        # put (within a tenth of the diameter) and the slots read the same.
+        before = _project(image_H_sign, _PART_CENTRES[:2])
+        after = _project(h_ref, _PART_CENTRES[:2])
+        moved = float(np.abs(after - before).max())
+        if moved > 0.1 * major or _read_slots(g, h_ref, settings).code != code:
+            return _fail("inconsistent", quality=reading.margin)
+        image_H_sign = h_ref
     else:
         rms = float("nan")
     if allowed is not None and code not in allowed:
