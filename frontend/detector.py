@@ -7,11 +7,13 @@ Modes:
   returns the raw windows), merged as in §2.2 (same-size windows within
   R = half a window merged when at least T = 2 agree; merged windows of
   different sizes that overlap enough become one).
-* ``fast``: the same cascade and merge, with less searching. Large windows
-  (>= ``fast_split_px``) are searched on a downscaled frame; small windows
-  only inside regions with enough edges (a sign is all edges; sky is none),
-  found on a coarse tile grid. Signs smaller than the 24 px window are
-  caught by searching those regions once more magnified.
+* ``fast``: the same cascade and merge, searched only around candidates.
+  A cheap stage on a half-size frame finds where a sign's black disc can be
+  (pixels among the frame's darkest with bright ones next to them, i.e. the
+  black disc with its white parts; lattice, sky and ground drop out); the
+  cascade then runs on those regions only, at all scales, and once more
+  magnified for signs smaller than the 24 px window (``fast_small_min_px``),
+  which the paper's sliding window cannot see.
 * tracking (``detect_tracked``): given each sign's predicted centre and
   diameter (from the previous pose), search only a region around it with the
   window size restricted to the predicted one; signs not found there are
@@ -60,12 +62,15 @@ class DetectorSettings:
         merge_overlap: overlap (intersection over union) above which windows
             of different sizes are one sign.
         group_eps: ``cv2.groupRectangles`` eps for merge="group".
-        fast_split_px: fast mode searches windows at least this big on a
-            frame downscaled by ``fast_split_px / 24``.
-        fast_tile_px: tile side of the edge-density gate [px].
-        fast_edge_frac: tiles with fewer edge pixels than this are skipped.
+        fast_dark_margin: candidate pixels are at most this much brighter than
+            the frame's 0.5th percentile [grey levels] (a sign's black is
+            among the darkest things in view).
+        fast_min_range: ...and have pixels this much brighter within 7 px
+            (a sign spans black to white) [grey levels].
+        fast_roi_grow: a candidate blob's box grows by this fraction of its
+            size (plus 24 px) on each side before the cascade searches it.
         fast_small_min_px: smallest sign fast mode looks for (windows below
-            24 px via magnified regions); 0 disables.
+            24 px via magnified candidate areas); 0 disables.
         track_margin: tracking ROI half-side, in predicted diameters, beyond
             the predicted radius.
         track_scale: (lo, hi) window size range relative to the predicted
@@ -85,9 +90,9 @@ class DetectorSettings:
     merge_min_count: int = 2
     merge_overlap: float = 0.4
     group_eps: float = 0.2
-    fast_split_px: int = 60
-    fast_tile_px: int = 32
-    fast_edge_frac: float = 0.02
+    fast_dark_margin: float = 25.0
+    fast_min_range: int = 50
+    fast_roi_grow: float = 0.5
     fast_small_min_px: int = 16
     track_margin: float = 0.6
     track_scale: tuple[float, float] = (0.7, 1.45)
@@ -191,8 +196,7 @@ def paper_merge(
     for size in np.unique(rects[:, 2]):
         r = rects[rects[:, 2] == size]
         c = r[:, :2] + r[:, 2:] / 2
-        d2 = ((c[:, None, :] - c[None, :, :]) ** 2).sum(-1)
-        for comp in _components(d2 <= (radius_frac * size) ** 2):
+        for comp in _radius_components(c, radius_frac * size):
             if comp.size >= min_count:
                 merged.append(r[comp].mean(axis=0))
                 counts.append(comp.size)
@@ -203,28 +207,50 @@ def paper_merge(
     # Different sizes: greedily, strongest group first, join a group to the first
     # kept sign it overlaps by more than ``overlap`` (intersection over union);
     # a sign's box is the count-weighted average of its groups.
-    out: list[np.ndarray] = []
-    out_n: list[int] = []
+    out = np.zeros((len(m), 4))
+    out_n = np.zeros(len(m))
+    k = 0
     for i in np.argsort(-n, kind="stable"):
-        for k, box in enumerate(out):
-            if _iou(box, m[i]) > overlap:
-                total = out_n[k] + n[i]
-                out[k] = (box * out_n[k] + m[i] * n[i]) / total
-                out_n[k] = int(total)
-                break
+        hit = np.flatnonzero(_iou(out[:k], m[i]) > overlap)
+        if hit.size:
+            j = hit[0]
+            out[j] = (out[j] * out_n[j] + m[i] * n[i]) / (out_n[j] + n[i])
+            out_n[j] += n[i]
         else:
-            out.append(m[i].copy())
-            out_n.append(int(n[i]))
-    return np.array(out), np.array(out_n)
+            out[k], out_n[k] = m[i], n[i]
+            k += 1
+    return out[:k], out_n[:k].astype(int)
 
 
-def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    iw = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
-    ih = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
-    if iw <= 0 or ih <= 0:
-        return 0.0
-    inter = iw * ih
-    return float(inter / (a[2] * a[3] + b[2] * b[3] - inter))
+def _iou(boxes: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(K,) intersection over union of (K, 4) boxes with box ``b`` (x, y, w, h)."""
+    iw = np.minimum(boxes[:, 0] + boxes[:, 2], b[0] + b[2]) - np.maximum(boxes[:, 0], b[0])
+    ih = np.minimum(boxes[:, 1] + boxes[:, 3], b[1] + b[3]) - np.maximum(boxes[:, 1], b[1])
+    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
+    return inter / (boxes[:, 2] * boxes[:, 3] + b[2] * b[3] - inter)
+
+
+def _radius_components(centers: np.ndarray, radius: float) -> list[np.ndarray]:
+    """Groups of points chained by distances <= ``radius`` (index arrays).
+
+    Small sets use the exact distance matrix; large ones (thousands of raw
+    windows from a weak cascade) a raster of discs (exact up to a pixel of
+    the raster, i.e. about a sixth of the radius).
+    """
+    n = centers.shape[0]
+    if n <= 400:
+        d2 = ((centers[:, None, :] - centers[None, :, :]) ** 2).sum(-1)
+        return _components(d2 <= radius * radius)
+    # Discs of radius R/2 touch when their centres are within R: label the
+    # connected blobs of a raster of such discs (3 px radius).
+    scale = 3.0 / max(radius / 2, 1e-9)
+    p = np.round((centers - centers.min(axis=0)) * scale).astype(int) + 4
+    mask = np.zeros((p[:, 1].max() + 5, p[:, 0].max() + 5), np.uint8)
+    for x, y in p.tolist():
+        cv2.circle(mask, (x, y), 3, 255, -1)
+    _, labels = cv2.connectedComponents(mask, connectivity=8)
+    roots = labels[p[:, 1], p[:, 0]]
+    return [np.flatnonzero(roots == r) for r in np.unique(roots)]
 
 
 def group_merge(
@@ -313,47 +339,71 @@ class SignDetector:
     def raw_windows(self, gray: np.ndarray, mode: str = "paper") -> np.ndarray:
         """(N, 4) raw cascade windows (x, y, w, h) [px] of a whole image."""
         gray = _as_gray(gray)
-        if mode == "paper":
-            return self._raw(gray, WINDOW_PX, self.settings.max_size_frac * min(gray.shape))
-        if mode != "fast":
+        if mode not in MODES:
             raise InputError(f"unknown detection mode {mode!r}: use one of {', '.join(MODES)}")
+        if mode == "paper" or min(gray.shape) < 96:
+            max_px = max(WINDOW_PX, self.settings.max_size_frac * min(gray.shape))
+            return self._raw(gray, WINDOW_PX, max_px)
         return self._fast_raw(gray)
+
+    def candidate_rois(self, gray: np.ndarray) -> list[tuple[int, int, int, int]]:
+        """Fast mode's candidate regions (x, y, w, h) [px]: where a sign's black can be.
+
+        On a half-size frame, pixels whose 3 x 3 minimum is among the darkest
+        of the frame (below the 0.5th percentile + ``fast_dark_margin``) and
+        that have bright pixels nearby (grey range >= ``fast_min_range``)
+        are grouped into blobs; each blob's box, grown by
+        ``fast_roi_grow`` of its size plus 24 px, is a region to search.
+        """
+        s = self.settings
+        h, w = gray.shape
+        half = cv2.resize(gray, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        low = cv2.erode(half, np.ones((3, 3), np.uint8))
+        high = cv2.dilate(half, np.ones((7, 7), np.uint8))
+        dark_thr = float(np.percentile(low[::4, ::4], 0.5)) + s.fast_dark_margin
+        cand = (low <= dark_thr) & (cv2.subtract(high, low) >= s.fast_min_range)
+        # Opening removes conductors and thin lines (also where they cross a sign).
+        cand = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+        n, _, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8)
+        rois = []
+        for bx, by, bw, bh, area in stats[1:].tolist():
+            # A disc's blob is compact: it fills its box and is at most ~3:1
+            # (65 degree view); conductors and lattice bars are long and thin.
+            if area < 0.3 * bw * bh or max(bw, bh) > 3 * min(bw, bh) or max(bw, bh) < 3:
+                continue
+            x0, y0, bw, bh = 2 * bx, 2 * by, 2 * bw, 2 * bh
+            if max(bw, bh) > s.max_size_frac * min(h, w) * 1.5:
+                continue  # a dark mass far bigger than any sign we look for
+            grow = s.fast_roi_grow * max(bw, bh) + WINDOW_PX
+            rois.append(
+                (
+                    int(max(x0 - grow, 0)),
+                    int(max(y0 - grow, 0)),
+                    int(min(x0 + bw + grow, w)),
+                    int(min(y0 + bh + grow, h)),
+                )
+            )
+        return [(x0, y0, x1 - x0, y1 - y0) for x0, y0, x1, y1 in rois]
 
     def _fast_raw(self, gray: np.ndarray) -> np.ndarray:
         s = self.settings
         h, w = gray.shape
-        max_px = s.max_size_frac * min(h, w)
-        split = float(s.fast_split_px)
-        zoom = WINDOW_PX / split
-        parts = [self._raw_scaled(gray, zoom, split, max_px)]
-        # Edge-density gate on a coarse tile grid: only busy tiles can hold a sign.
-        t = s.fast_tile_px
-        half = cv2.resize(gray, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-        edges = cv2.Canny(half, 40, 100)
-        th, tw = (h // 2) // (t // 2), (w // 2) // (t // 2)
-        dens = (
-            edges[: th * (t // 2), : tw * (t // 2)]
-            .reshape(th, t // 2, tw, t // 2)
-            .mean(axis=(1, 3))
-            / 255.0
-        )
-        busy = dens >= s.fast_edge_frac
-        busy = cv2.dilate(busy.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-        pad = int(split)
-        for bx, by, bw, bh in _box_runs(busy):
-            x0, y0 = max(bx * t - pad // 2, 0), max(by * t - pad // 2, 0)
-            x1, y1 = min((bx + bw) * t + pad // 2, w), min((by + bh) * t + pad // 2, h)
-            roi = gray[y0:y1, x0:x1]
-            if min(roi.shape) < WINDOW_PX:
-                continue
-            r = self._raw(roi, WINDOW_PX, split * s.scale_factor).astype(float)
+        max_px = max(WINDOW_PX, s.max_size_frac * min(h, w))
+        parts = [np.zeros((0, 4))]
+        for x0, y0, rw, rh in self.candidate_rois(gray):
+            roi = gray[y0 : y0 + rh, x0 : x0 + rw]
+            if min(rw, rh) >= WINDOW_PX:
+                r = self._raw(roi, WINDOW_PX, max_px).astype(float)
+                r[:, :2] += (x0, y0)
+                parts.append(r)
             if s.fast_small_min_px and s.fast_small_min_px < WINDOW_PX:
+                # Signs below the 24 px window: the region magnified.
                 up = WINDOW_PX / s.fast_small_min_px
-                r2 = self._raw_scaled(roi, up, s.fast_small_min_px, WINDOW_PX * 1.05)
-                r = np.concatenate([r, r2])
-            r[:, :2] += (x0, y0)
-            parts.append(r)
-        return np.concatenate(parts) if parts else np.zeros((0, 4))
+                r = self._raw_scaled(roi, up, s.fast_small_min_px, WINDOW_PX)
+                r[:, :2] += (x0, y0)
+                parts.append(r)
+        # Overlapping regions report the same window twice: count it once.
+        return np.unique(np.round(np.concatenate(parts), 3), axis=0)
 
     # -- merge + decode ----------------------------------------------------------
 

@@ -128,11 +128,15 @@ def run(args: argparse.Namespace) -> int:
         f"--features {args.features} --stages {args.stages} --max-weak {args.max_weak} "
         f"--scene-frames {args.scene_frames}"
     )
+    # XML comments cannot hold "--": the options are spelled out without dashes.
+    options = cmd.split(" ", 2)[2].replace("--", "").split(" --")
     comment = (
         "signpose sign detector: Haar/Adaboost attentional cascade (paper 2.1), 24x24 window.\n"
-        f"Rebuild with: {cmd}\n"
-        f"(defaults apart from --out/--seed are the ones listed; trained in {minutes:.1f} min;\n"
-        f"{len(cascade.stages)} stages, {cascade.n_weak} weak classifiers)."
+        "Rebuild with `signpose train-detector` and the options (each with two leading\n"
+        f"dashes): {' '.join(options)}\n"
+        "(OPENBLAS_NUM_THREADS=1; see signs_cascade.md beside the bundled model).\n"
+        f"Trained in {minutes:.1f} min: {len(cascade.stages)} stages, "
+        f"{cascade.n_weak} weak classifiers."
     )
     write_cascade_xml(args.out, cascade, comment)
     print(

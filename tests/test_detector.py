@@ -1,0 +1,165 @@
+"""Detection (paper §2.2): the merge, the bundled model on a rendered frame, tracking, CLI."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from frontend.detector import (
+    Detection,
+    DetectionResult,
+    DetectorSettings,
+    SignDetector,
+    group_merge,
+    paper_merge,
+    to_frame_observations,
+)
+from maps.loader import bundled_map_path, load_map
+
+
+def test_paper_merge_same_size_needs_two_windows_within_half_a_window():
+    rects = np.array(
+        [
+            [100, 100, 40, 40],
+            [104, 98, 40, 40],
+            [110, 102, 40, 40],  # within R = 20 px of its neighbours
+            [400, 300, 40, 40],  # alone: N = 1 < T = 2, dropped
+        ]
+    )
+    merged, counts = paper_merge(rects, radius_frac=0.5, min_count=2)
+    assert counts.tolist() == [3]
+    np.testing.assert_allclose(merged[0], [(100 + 104 + 110) / 3, 100, 40, 40])
+
+
+def test_paper_merge_keeps_distant_signs_apart_and_joins_sizes():
+    rects = np.array(
+        [
+            [100, 100, 40, 40],
+            [102, 100, 40, 40],
+            [98, 96, 44, 44],  # another size on the same sign
+            [99, 99, 44, 44],
+            [300, 100, 40, 40],  # a second sign
+            [303, 101, 40, 40],
+        ]
+    )
+    merged, counts = paper_merge(rects)
+    assert sorted(counts.tolist()) == [2, 4]
+    first = merged[np.argmax(counts)]
+    assert 40 < first[2] < 44  # average size of the two groups
+    assert abs(first[0] - 99.75) < 1e-9
+    # Windows too far apart for R (more than half a window) stay separate groups.
+    merged, counts = paper_merge(np.array([[0, 0, 40, 40], [25, 0, 40, 40]]), min_count=1)
+    assert len(merged) == 2
+
+
+def test_group_merge_wraps_opencv():
+    rects = np.array([[100, 100, 40, 40], [102, 100, 40, 40], [300, 300, 30, 30]])
+    merged, counts = group_merge(rects, min_count=2)
+    assert len(merged) == 1 and counts[0] == 2
+
+
+@pytest.fixture(scope="module")
+def frame(tmp_path_factory):
+    """One simulated 1080p frame of the demo pylon and its truth."""
+    from signpose.simulate import SimSettings, read_boxes, simulate
+
+    out = tmp_path_factory.mktemp("sim")
+    simulate(
+        load_map(bundled_map_path()),
+        out,
+        SimSettings(frames=2, seed=78, format="png", blur=False),
+        False,
+    )
+    gray = cv2.imread(str(out / "frames" / "000001.png"), cv2.IMREAD_GRAYSCALE)
+    return gray, read_boxes(out / "boxes.jsonl")[1], out / "frames" / "000001.png"
+
+
+def _n_true(result: DetectionResult, truth: dict) -> int:
+    by_code = {s["code"]: s for s in truth["signs"]}
+    n = 0
+    for d in result.detections:
+        s = by_code.get(d.code)
+        if s and np.hypot(*np.subtract(d.center_px, s["center_px"])) < 0.5 * s["diameter_px"]:
+            n += 1
+    return n
+
+
+def _n_covered(regions: np.ndarray, truth: dict) -> int:
+    """Truth signs with a region centred within a quarter diameter of theirs."""
+    c = regions[:, :2] + regions[:, 2:] / 2
+    n = 0
+    for s in truth["signs"]:
+        if len(c) and np.min(np.hypot(*(c - s["center_px"]).T)) < 0.25 * s["diameter_px"]:
+            n += 1
+    return n
+
+
+@pytest.mark.parametrize("mode", ["fast", "paper"])
+def test_bundled_model_finds_every_sign_region_of_a_rendered_frame(frame, mode):
+    gray, truth, _ = frame
+    det = SignDetector(settings=DetectorSettings(decode=False))
+    result = det.detect(gray, mode=mode)
+    assert len(truth["signs"]) >= 5
+    assert _n_covered(result.regions, truth) >= 0.9 * len(truth["signs"])
+    assert result.n_regions <= 4 * len(truth["signs"])
+
+
+def _decodable(gray: np.ndarray, truth: dict) -> int:
+    from frontend.decoder import decode_region
+
+    return sum(decode_region(gray, s["bbox_px"]).code == s["code"] for s in truth["signs"])
+
+
+@pytest.mark.parametrize("mode", ["fast", "paper"])
+def test_bundled_model_detects_and_decodes_the_signs_of_a_rendered_frame(frame, mode):
+    gray, truth, _ = frame
+    result = SignDetector().detect(gray, load_map(bundled_map_path()).codes, mode=mode)
+    # The decoder's own reading of the true boxes is the ceiling.
+    ceiling = _decodable(gray, truth)
+    assert ceiling >= 3
+    assert _n_true(result, truth) >= 0.8 * ceiling
+    assert len(result.detections) == _n_true(result, truth)  # nothing false
+    assert result.n_regions == len(result.detections) + result.n_undecoded or (
+        result.n_regions > len(result.detections)
+    )
+
+
+def test_tracking_finds_predicted_signs_and_falls_back_when_lost(frame):
+    gray, truth, _ = frame
+    det = SignDetector()
+    preds = [(s["code"], tuple(s["center_px"]), s["diameter_px"]) for s in truth["signs"]]
+    res = det.detect_tracked(gray, preds)
+    assert res.mode == "track"
+    ceiling = _decodable(gray, truth)
+    assert _n_true(res, truth) >= 0.8 * ceiling
+    # A prediction where there is no sign: lost, so the full frame is searched.
+    lost = det.detect_tracked(gray, [("1111", (60.0, 60.0), 40.0)])
+    assert lost.fell_back
+    assert _n_true(lost, truth) >= 0.8 * ceiling
+
+
+def test_to_frame_observations_keeps_codes_and_keypoints():
+    det = Detection("0101", (10.0, 20.0), (0, 0, 30, 30), {"center": (10.0, 20.0)}, 0.9, 0.3)
+    obs = to_frame_observations(DetectionResult((det,), 1, 0), 7, 123, (1920, 1080))
+    assert obs.frame == 7 and obs.stamp_ns == 123 and obs.image_size == (1920, 1080)
+    assert obs.signs[0].code == "0101" and obs.signs[0].center_px == (10.0, 20.0)
+    assert obs.signs[0].sigma_px == 0.3
+
+
+def test_cli_prints_one_json_line_per_image(frame, tmp_path, capsys):
+    from signpose.cli import main
+
+    _, truth, png = frame
+    missing = tmp_path / "missing.png"
+    assert main(["detect", str(png), str(missing)]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [x["image"] for x in lines] == [str(png), str(missing)]
+    assert "error" in lines[1]
+    codes = {s["code"] for s in lines[0]["signs"]}
+    assert len(codes & {s["code"] for s in truth["signs"]}) >= 3
+    sign = lines[0]["signs"][0]
+    assert set(sign) == {"code", "center_px", "bbox_px", "keypoints_px", "score"}
+    assert main(["detect", str(missing)]) == 2
