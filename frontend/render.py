@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -427,11 +428,11 @@ def compose_frame(
     backdrop: Backdrop | None,
     K: np.ndarray,
     world_T_cam: np.ndarray,
-    signs: list[ProjectedSign],
+    signs: Sequence[ProjectedSign],
     rng: np.random.Generator,
     *,
-    lines_behind: list[ProjectedLine] = (),
-    lines_front: list[ProjectedLine] = (),
+    lines_behind: Sequence[ProjectedLine] = (),
+    lines_front: Sequence[ProjectedLine] = (),
     background_motion_px: np.ndarray | None = None,
     gain: float = 1.0,
     offset: float = 0.0,
@@ -447,7 +448,7 @@ def compose_frame(
         signs: the visible signs, projected by the caller (drawn in list order).
         rng: source of the per-frame randomness (noise crop).
         lines_behind: lattice members and conductors behind the signs.
-        lines_front: conductors in front of the signs.
+        lines_front: conductors in front of the signs (all drawn in the first one's colour).
         background_motion_px: (2,) image motion during the exposure used to blur
             the background and the front lines [px].
         gain, offset: global lighting, ``out = gain * in + offset`` [DN].
