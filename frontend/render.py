@@ -88,6 +88,7 @@ class ProjectedSign:
             front of the face.
         motion_px: (2,) image motion of the sign centre during the exposure
             [px]; the blur kernel is this segment, centred on the sign.
+        shade: reflectance/illumination factor of this face (weathering, sun angle).
     """
 
     code: str
@@ -96,6 +97,7 @@ class ProjectedSign:
     dirt_px: tuple[tuple[np.ndarray, float, float], ...] = ()
     occluders_px: tuple[tuple[np.ndarray, float], ...] = ()
     motion_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    shade: float = 1.0
 
 
 def _value_noise(rng: np.random.Generator, shape: tuple[int, int], cells: list[int]) -> np.ndarray:
@@ -405,9 +407,9 @@ def _render_sign(frame: np.ndarray, sign: ProjectedSign, options: RenderOptions)
     alpha = np.zeros((y1 - y0, x1 - x0), np.float32)
     disc = sign.disc_px - off
     fill_polygon_aa(alpha, disc, 1.0, ss)
-    premult = alpha * SIGN_BLACK  # the black disc, premultiplied
+    premult = alpha * (SIGN_BLACK * sign.shade)  # the black disc, premultiplied
     for part in sign.white_px:
-        fill_polygon_aa(premult, part - off, SIGN_WHITE, ss)
+        fill_polygon_aa(premult, part - off, SIGN_WHITE * sign.shade, ss)
     for poly, value, opacity in sign.dirt_px:
         stain = np.zeros_like(alpha)
         fill_polygon_aa(stain, poly - off, 1.0, ss)

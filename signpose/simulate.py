@@ -255,6 +255,7 @@ class SignModel:
         keypoints_m: keypoint name -> (3,) [m], world.
         dirt_m: (polygon (P, 3) [m] world, intensity, opacity) stains.
         occluders_m: (polygon (P, 3) [m] world, intensity) bars in front of the face.
+        shade: reflectance/illumination factor of the face (1 = nominal paint).
     """
 
     code: str
@@ -266,6 +267,7 @@ class SignModel:
     keypoints_m: dict[str, np.ndarray]
     dirt_m: tuple[tuple[np.ndarray, float, float], ...]
     occluders_m: tuple[tuple[np.ndarray, float], ...]
+    shade: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -503,12 +505,15 @@ def build_scene(
     signs = tuple(_sign_model(s, facing, rng, dirt, occlusion) for s in sign_map.signs)
     if occlusion and not any(s.occluders_m for s in signs):
         # At least one occluded sign when occlusion is asked for.
-        s0 = sign_map.signs[int(rng.integers(len(sign_map.signs)))]
-        forced = _sign_model(s0, facing, np.random.default_rng([seed, 1]), dirt, False)
+        k = int(rng.integers(len(signs)))
         bar_rng = np.random.default_rng([seed, 2])
-        while not forced.occluders_m:
-            forced = _sign_model(s0, facing, bar_rng, False, True)
-        signs = tuple(forced if s.code == s0.code else s for s in signs)
+        bars: tuple = ()
+        while not bars:
+            bars = _sign_model(sign_map.signs[k], facing, bar_rng, False, True).occluders_m
+        signs = signs[:k] + (replace(signs[k], occluders_m=bars),) + signs[k + 1 :]
+    # Faces weather and catch the sun differently (own stream: other draws stay put).
+    shades = np.random.default_rng([seed, 4242]).uniform(0.85, 1.08, len(signs))
+    signs = tuple(replace(s, shade=float(f)) for s, f in zip(signs, shades, strict=True))
     if background:
         lattice, far, near = _pylon_lines(sign_map)
     else:
@@ -662,6 +667,7 @@ def render_frame(
                 dirt_px,
                 occ_px,
                 motion if motion is not None else np.zeros(2),
+                s.shade,
             )
         )
         half = len(disc_px) // 2
