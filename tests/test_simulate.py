@@ -10,8 +10,8 @@ from conftest import clean_sim_options, white_centroid_px
 
 from estimator.camera import load_camera, pixel_from_world_point
 from estimator.tum import read_tum
-from frontend.render import line_kernel
-from frontend.sign import LOCATION_SIDE_R
+from frontend.render import SIGN_BLACK, SIGN_WHITE, line_kernel
+from frontend.sign import LOCATION_SIDE_R, all_slot_keypoints
 from maps.loader import load_map
 from signpose.cli import main
 from signpose.errors import InputError, OutputError
@@ -117,6 +117,30 @@ def test_motion_blur_keeps_the_location_square_centre(demo_map):
             checked += 1
     assert checked >= 10
     assert moved > 50  # the blur is real
+
+
+def test_truth_keypoints_are_on_white_and_black_slots_dark(demo_map):
+    camera = simulated_camera(SimSettings())
+    scene = build_scene(demo_map, camera, background=False)
+    pose = make_trajectory("orbit", demo_map, 60, 30.0).world_T_cam()[10]
+    image, truths = render_frame(scene, pose, np.random.default_rng(0), options=clean_sim_options())
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(float)
+    mid = 0.5 * (SIGN_BLACK + SIGN_WHITE)
+    checked = 0
+    for t in truths:
+        sign = demo_map.sign(t.code)
+        R = sign.world_R_sign()
+        for name, p in all_slot_keypoints(sign.diameter_m).items():
+            px, _ = pixel_from_world_point(camera, pose, (sign.center_m + R @ p)[None])
+            u, v = px[0]
+            value = gray[int(round(v)), int(round(u))]
+            if name in t.keypoints_px:
+                assert value > mid, f"{t.code} {name} is not white ({value})"
+                np.testing.assert_allclose(t.keypoints_px[name], (u, v), atol=1e-6)
+            else:
+                assert value < mid, f"{t.code} black {name} is not dark ({value})"
+            checked += 1
+    assert checked >= 50
 
 
 def test_location_square_size_in_image(demo_map):
