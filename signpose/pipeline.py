@@ -19,8 +19,11 @@ import logging
 import math
 import os
 import tempfile
+import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -65,6 +68,9 @@ class ObserveSettings:
             full frame).
         cascade_path: detector cascade XML; "" = the bundled one.
         prefetch: read and decode the input in a background thread.
+        workers: frames detected at once, each in its own thread with its own
+            detector (0 = 2 on a multi-core machine). With more than one,
+            tracking predicts frame i from the pose of frame i - workers.
     """
 
     codes: tuple[str, ...] | None = None
@@ -74,6 +80,7 @@ class ObserveSettings:
     prediction_margin: float = -0.6
     cascade_path: str = ""
     prefetch: bool = True
+    workers: int = 0
 
 
 @dataclass(frozen=True)
@@ -242,12 +249,12 @@ def predict_signs(
     return out
 
 
-def _extrapolate(prev: np.ndarray, prev2: np.ndarray | None) -> np.ndarray:
-    """Constant velocity in translation from the last two poses (rotation held)."""
+def _extrapolate(prev: np.ndarray, prev2: np.ndarray | None, steps: int = 1) -> np.ndarray:
+    """Constant velocity in translation from the last two poses, ``steps`` frames on."""
     if prev2 is None:
         return prev
     out = prev.copy()
-    out[:3, 3] = prev[:3, 3] + (prev[:3, 3] - prev2[:3, 3])
+    out[:3, 3] = prev[:3, 3] + steps * (prev[:3, 3] - prev2[:3, 3])
     return out
 
 
@@ -335,15 +342,64 @@ def observe(
     tracking = s.tracking and sign_map is not None and camera is not None
     if tracking:
         from estimator.perframe import solve_frame_pnp
-    det = detector  # made after the first frame passed the size check
     timing = dict.fromkeys(("decode_video", "wait_video", "detect", "decode", "track"), 0.0)
     stream = ObservationStream(out_path) if out_path is not None else None
     frames: list[FrameObservations] = []
-    tracked = full = 0
+    counts = {"tracked": 0, "full": 0}
+    # Frames in flight at once: with our own detector, two worker threads
+    # (one detector each) overlap frames; frame i is then predicted from the
+    # pose of frame i - 2. A detector passed in is called from this thread only.
+    depth = 1 if detector is not None else max(1, s.workers or min(2, os.cpu_count() or 1))
+    local = threading.local()
+
+    def detector_here():
+        if detector is not None:
+            return detector
+        det = getattr(local, "det", None)
+        if det is None:
+            det = local.det = make_detector(s)
+        return det
+
+    def detect(gray: np.ndarray, predictions) -> tuple[Any, bool, float]:
+        """(result, tracked without falling back, seconds spent) for one frame."""
+        det = detector_here()
+        t = time.perf_counter()
+        if predictions:
+            # The detector searches the full frame itself when a prediction is lost.
+            result = det.detect_tracked(gray, predictions, codes)
+            tracked = not getattr(result, "fell_back", False)
+        else:
+            result, tracked = _detect_full(det, gray, codes, s.detector_mode), False
+        return result, tracked, time.perf_counter() - t
+
+    pool = ThreadPoolExecutor(depth, thread_name_prefix="signpose-detect") if depth > 1 else None
     prev_T = prev2_T = None
     size_checked = False
+    pending: deque = deque()
     bar = tqdm(total=source.length, desc="observe", unit="frame", disable=not progress)
     frame_iter: Iterator = prefetch(source) if s.prefetch else _no_prefetch(source)
+
+    def finish_one() -> None:
+        nonlocal prev_T, prev2_T
+        frame, job = pending.popleft()
+        result, was_tracked, spent_s = job if pool is None else job.result()
+        t_done = time.perf_counter()
+        _add_detector_time(timing, result, spent_s)
+        counts["tracked" if was_tracked else "full"] += 1
+        obs = _to_observations(result, frame.index, frame.stamp_ns, frame.image_size)
+        if tracking:
+            pose = solve_frame_pnp(obs, sign_map, camera, prior_world_T_cam=prev_T)
+            ok = pose.world_T_cam is not None and (
+                not math.isfinite(pose.rms_px) or pose.rms_px <= s.max_track_rms_px
+            )
+            prev2_T = prev_T if ok else None
+            prev_T = pose.world_T_cam if ok else None
+            timing["track"] += time.perf_counter() - t_done
+        if stream is not None:
+            stream.append(obs)
+        frames.append(obs)
+        bar.update(1)
+
     try:
         while True:
             t0 = time.perf_counter()
@@ -354,50 +410,32 @@ def observe(
             frame, gray = item.frame, item.gray
             t1 = time.perf_counter()
             # Reading runs ahead in its own thread: its cost is the reader's time,
-            # the wall-clock wait for it is part of "wait_video".
+            # the wall-clock wait for it is "wait_video".
             timing["decode_video"] += item.read_s
             timing["wait_video"] += t1 - t0
             if not size_checked:
                 if camera is not None:
                     check_image_size(camera, *frame.image_size, str(source.path))
                 size_checked = True
-                if det is None:
-                    det = make_detector(s)
-                    t1 = time.perf_counter()  # loading the model is not detection time
-            result = None
+                detector_here()  # a bad model file fails here, once
+            predictions = None
             if tracking and prev_T is not None:
+                predicted_T = _extrapolate(prev_T, prev2_T, steps=len(pending) + 1)
                 predictions = predict_signs(
-                    sign_map, camera, _extrapolate(prev_T, prev2_T), codes, s.prediction_margin
+                    sign_map, camera, predicted_T, codes, s.prediction_margin
                 )
-                if predictions:
-                    # The detector searches the full frame itself when a prediction is lost.
-                    result = det.detect_tracked(gray, predictions, codes)
-                    if getattr(result, "fell_back", False):
-                        full += 1
-                    else:
-                        tracked += 1
-            if result is None:
-                result = _detect_full(det, gray, codes, s.detector_mode)
-                full += 1
-            t2 = time.perf_counter()
-            _add_detector_time(timing, result, t2 - t1)
-            obs = _to_observations(result, frame.index, frame.stamp_ns, frame.image_size)
-            if tracking:
-                t3 = time.perf_counter()
-                pose = solve_frame_pnp(obs, sign_map, camera, prior_world_T_cam=prev_T)
-                ok = pose.world_T_cam is not None and (
-                    not math.isfinite(pose.rms_px) or pose.rms_px <= s.max_track_rms_px
-                )
-                prev2_T = prev_T if ok else None
-                prev_T = pose.world_T_cam if ok else None
-                timing["track"] += time.perf_counter() - t3
-            if stream is not None:
-                stream.append(obs)
-            frames.append(obs)
-            bar.update(1)
+            if pool is None:
+                pending.append((frame, detect(gray, predictions)))
+            else:
+                pending.append((frame, pool.submit(detect, gray, predictions)))
+            while len(pending) >= depth:
+                finish_one()
+        while pending:
+            finish_one()
     except KeyboardInterrupt:
         bar.close()
         _close(frame_iter)
+        _stop(pool, pending)
         if stream is not None:
             kept = stream.finish_partial()
             if kept is not None:
@@ -406,13 +444,26 @@ def observe(
     except BaseException:
         bar.close()
         _close(frame_iter)
+        _stop(pool, pending)
         if stream is not None:
             stream.abort()
         raise
     bar.close()
+    if pool is not None:
+        pool.shutdown(wait=True)
     if stream is not None:
         stream.finish()
-    return ObserveResult(tuple(frames), timing, tuple(source.problems), tracked, full)
+    return ObserveResult(
+        tuple(frames), timing, tuple(source.problems), counts["tracked"], counts["full"]
+    )
+
+
+def _stop(pool: ThreadPoolExecutor | None, pending: deque) -> None:
+    if pool is None:
+        return
+    for _, job in pending:
+        job.cancel()
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _add_detector_time(timing: dict[str, float], result: Any, wall_s: float) -> None:

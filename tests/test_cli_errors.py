@@ -50,7 +50,7 @@ def test_run_ok(flight, replay, tmp_path, capsys):
     out = tmp_path / "out"
     code = main(
         ["run", str(flight.frames_path), "--map", MAP, "--camera", str(flight.camera_path),
-         "--out", str(out), "--quiet"]
+         "--out", str(out), "--quiet", "--workers", "1"]
     )  # fmt: skip
     assert code == 0
     assert capsys.readouterr().err == ""
@@ -74,7 +74,7 @@ def test_truncated_video(flight, replay, tmp_path, capsys):
     out = tmp_path / "out"
     code = main(
         ["run", str(cut), "--map", MAP, "--camera", str(flight.camera_path), "--out", str(out),
-         "--no-plots", "--quiet"]
+         "--no-plots", "--quiet", "--workers", "1"]
     )  # fmt: skip
     assert code == 2
     line = _one_error_line(capsys, "cut.avi", "video stopped at frame", "of 12")
@@ -96,7 +96,20 @@ def test_truncated_mcap(tmp_path, replay, flight, capsys):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
     out = tmp_path / "out"
-    code = main(["run", str(cut), "--map", MAP, "--out", str(out), "--no-plots", "--quiet"])
+    code = main(
+        [
+            "run",
+            str(cut),
+            "--map",
+            MAP,
+            "--out",
+            str(out),
+            "--no-plots",
+            "--quiet",
+            "--workers",
+            "1",
+        ]
+    )
     assert code == 2
     _one_error_line(capsys, "cut.mcap", "log stopped after", "truncated or corrupt")
     n = len(read_observations(out / "observations.jsonl"))
@@ -137,7 +150,7 @@ def test_mcap_topic_problems(tmp_path, flight, capsys, topics, arg, needles):
     _mcap_with_topics(path, topics)
     code = main(
         ["run", str(path), "--map", MAP, "--camera", str(flight.camera_path), "--out",
-         str(tmp_path / "out"), "--quiet", *arg]
+         str(tmp_path / "out"), "--quiet", "--workers", "1", *arg]
     )  # fmt: skip
     assert code == 2
     _one_error_line(capsys, "log.mcap", *needles)
@@ -149,7 +162,7 @@ def test_camera_size_mismatch(flight, replay, tmp_path, capsys):
     out = tmp_path / "out"
     code = main(
         ["run", str(flight.frames_path), "--map", MAP, "--camera", str(cam), "--out", str(out),
-         "--quiet"]
+         "--quiet", "--workers", "1"]
     )  # fmt: skip
     assert code == 2
     _one_error_line(capsys, "images are 320x240", "640x480")
@@ -165,7 +178,7 @@ def test_map_codes_never_seen(flight, replay, tmp_path, capsys):
     )
     code = main(
         ["run", str(flight.frames_path), "--map", str(other), "--camera",
-         str(flight.camera_path), "--out", str(tmp_path / "out"), "--quiet"]
+         str(flight.camera_path), "--out", str(tmp_path / "out"), "--quiet", "--workers", "1"]
     )  # fmt: skip
     assert code == 2
     _one_error_line(capsys, "other.yaml", "none of the map's codes (1111)")
@@ -181,7 +194,7 @@ def test_empty_input(tmp_path, capsys, kind, flight):
         inp.write_bytes(b"")
     code = main(
         ["run", str(inp), "--map", MAP, "--camera", str(flight.camera_path), "--out",
-         str(tmp_path / "out"), "--quiet"]
+         str(tmp_path / "out"), "--quiet", "--workers", "1"]
     )  # fmt: skip
     assert code == 2
     _one_error_line(capsys, inp.name)
@@ -192,7 +205,7 @@ def test_unwritable_output(flight, tmp_path, capsys):
     blocker.write_text("not a folder")
     code = main(
         ["run", str(flight.frames_path), "--map", MAP, "--camera", str(flight.camera_path),
-         "--out", str(blocker / "out"), "--quiet"]
+         "--out", str(blocker / "out"), "--quiet", "--workers", "1"]
     )  # fmt: skip
     assert code == 2
     _one_error_line(capsys, "cannot create output folder")
@@ -205,7 +218,7 @@ def test_ctrl_c(flight, monkeypatch, tmp_path, capsys):
     out = tmp_path / "out"
     code = main(
         ["run", str(flight.frames_path), "--map", MAP, "--camera", str(flight.camera_path),
-         "--out", str(out), "--quiet"]
+         "--out", str(out), "--quiet", "--workers", "1"]
     )  # fmt: skip
     assert code == 130
     _one_error_line(capsys, "interrupted")
@@ -217,7 +230,7 @@ def test_observe_command(flight, replay, tmp_path, capsys):
     out = tmp_path / "obs.jsonl"
     code = main(
         ["observe", str(flight.frames_path), "--out", str(out), "--map", MAP, "--camera",
-         str(flight.camera_path), "--quiet"]
+         str(flight.camera_path), "--quiet", "--workers", "1"]
     )  # fmt: skip
     assert code == 0
     assert len(read_observations(out)) == 12

@@ -25,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, help="frame rate of an image folder without frames.csv")
     p.add_argument("--codes", type=codes_arg, help="codes to look for, e.g. 0001,0101")
     p.add_argument("--no-tracking", action="store_true", help="search every full frame")
+    p.add_argument(
+        "--workers", type=int, default=0, help="frames detected at once (default: 2 if >1 core)"
+    )
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -44,7 +47,9 @@ def run(args: argparse.Namespace) -> int:
     source = open_source(args.input, topic=args.topic, fps=args.fps)
     if camera is None:
         camera = source.camera
-    settings = ObserveSettings(codes=args.codes, tracking=not args.no_tracking)
+    settings = ObserveSettings(
+        codes=args.codes, tracking=not args.no_tracking, workers=args.workers
+    )
     result = observe(source, sign_map, camera, settings, not args.quiet, out_path=args.out)
     n = len(result.frames)
     signs = sum(len(f.signs) for f in result.frames)

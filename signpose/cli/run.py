@@ -29,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--codes", type=codes_arg, help="codes to look for (default: the map's)")
     p.add_argument("--solver", choices=("batch", "isam2"), default="batch", help="smoother solver")
     p.add_argument("--no-tracking", action="store_true", help="search every full frame")
+    p.add_argument(
+        "--workers", type=int, default=0, help="frames detected at once (default: 2 if >1 core)"
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     add_quiet(p)
     p.set_defaults(func=run)
@@ -63,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
     sign_map = load_map(args.map)
     camera = load_camera(args.camera) if args.camera else None
     settings = RunSettings(
-        observe=ObserveSettings(codes=args.codes, tracking=not args.no_tracking),
+        observe=ObserveSettings(
+            codes=args.codes, tracking=not args.no_tracking, workers=args.workers
+        ),
         estimator=EstimatorSettings(solver=args.solver),
         with_images=args.with_images,
         plots=not args.no_plots,
