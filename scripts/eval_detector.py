@@ -6,10 +6,11 @@ training: the detector is trained on ``frontend.synth`` crops only), runs the
 detector on every frame and scores it against ``boxes.jsonl``:
 
     N  signs present (not truncated, disc >= 18 px)
+    D  of those, signs the decoder reads from the true box (the ceiling)
     S  regions reported (decoded detections)
     T  true: right code, centre within half a diameter of the truth
     F  false: S - T
-    precision = T / S, recall = S / N (the paper's definitions), and T / N
+    precision = T / S, recall = S / N (the paper's definitions), T / N and T / D
 
 split by sign size (18-30, 30-60, 60-200 px), for the paper's merge and
 ``cv2.groupRectangles``, in ``fast`` and ``paper`` modes.
@@ -37,7 +38,13 @@ from signpose.simulate import SimSettings, read_boxes, simulate
 BINS = ((18, 30), (30, 60), (60, 200))
 # Held-out flights: (trajectory, distance [m], share of the frames). Far, middle
 # and near so that every size bin is populated.
-FLIGHTS = (("orbit", 62.0, 0.34), ("climb-hover-depart", 32.0, 0.33), ("lawnmower", 15.0, 0.33))
+# (The lawnmower flight is left out: at these ranges its speed smears the signs
+# beyond what the decoder reads even from the true boxes.)
+FLIGHTS = (
+    ("orbit", 62.0, 0.34),
+    ("climb-hover-depart", 32.0, 0.33),
+    ("climb-hover-depart", 15.0, 0.33),
+)
 EVAL_SEED = 4242
 
 
@@ -56,10 +63,21 @@ def _bin(d: float) -> str | None:
 
 
 def _empty() -> dict:
-    return {"N": 0, "S": 0, "T": 0, "F": 0}
+    return {"N": 0, "D": 0, "S": 0, "T": 0, "F": 0}
 
 
-def score(detections, truth: dict, table: dict) -> None:
+def decodable(gray: np.ndarray, truth: dict) -> set[str]:
+    """Codes the decoder reads from the true boxes (the ceiling for any detector)."""
+    from frontend.decoder import decode_region
+
+    return {
+        s["code"]
+        for s in truth["signs"]
+        if not s["truncated"] and decode_region(gray, s["bbox_px"]).code == s["code"]
+    }
+
+
+def score(detections, truth: dict, table: dict, readable: set[str]) -> None:
     signs = [s for s in truth["signs"] if not s["truncated"]]
     by_code = {}
     for s in truth["signs"]:
@@ -68,6 +86,7 @@ def score(detections, truth: dict, table: dict) -> None:
         b = _bin(s["diameter_px"])
         if b:
             table[b]["N"] += 1
+            table[b]["D"] += s["code"] in readable
     for d in detections:
         match = None
         for s in by_code.get(d.code, []):
@@ -92,6 +111,7 @@ def summarize(table: dict) -> dict:
         r["precision"] = r["T"] / r["S"] if r["S"] else float("nan")
         r["recall"] = r["S"] / r["N"] if r["N"] else float("nan")
         r["true_recall"] = r["T"] / r["N"] if r["N"] else float("nan")
+        r["recall_of_decodable"] = r["T"] / r["D"] if r["D"] else float("nan")
         out[name] = r
     return out
 
@@ -131,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             simulate(sign_map, out, settings, progress=False)
             for gray, truth in _frames(out, n):
                 n_frames += 1
+                readable = decodable(gray, truth)
                 for mode in modes:
                     t0 = time.perf_counter()
                     raw = detectors["paper"].raw_windows(gray, mode)
@@ -140,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
                         res = det._finish(gray, raw, sign_map.codes, mode, {}, t1)
                         times[(mode, merge)].append((t_raw + time.perf_counter() - t1) * 1e3)
                         tab = tables[(mode, merge)]
-                        score(res.detections, truth, tab)
+                        score(res.detections, truth, tab, readable)
                         extra[(mode, merge)]["regions"] += res.n_regions
                         extra[(mode, merge)]["undecoded"] += res.n_undecoded
             print(
@@ -164,13 +185,14 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(
             f"{'size px':>8} {'N':>6} {'S':>6} {'T':>6} {'F':>4} {'precision':>10} "
-            f"{'recall S/N':>10} {'T/N':>7}"
+            f"{'recall S/N':>10} {'T/N':>7} {'D':>6} {'T/D':>7}"
         )
         for name, r in summ.items():
             print(
                 f"{name:>8} {r['N']:6d} {r['S']:6d} {r['T']:6d} {r['F']:4d} "
                 f"{100 * r['precision']:9.2f}% {100 * r['recall']:9.2f}% "
-                f"{100 * r['true_recall']:6.2f}%"
+                f"{100 * r['true_recall']:6.2f}% {r['D']:6d} "
+                f"{100 * r['recall_of_decodable']:6.2f}%"
             )
     if args.json:
         args.json.write_text(
