@@ -27,7 +27,14 @@ Then, beyond the paper:
   centroid of a tilted rectangle is not the image of its centre, so the fit
   predicts each rectangle's image centroid exactly (projected polygon) and
   iterates the small correction. Every keypoint is the sign-frame keypoint
-  mapped through this homography (sub-pixel, the same map for all).
+  mapped through this homography (sub-pixel, the same map for all). The
+  centroids are gray-level ones (white fraction per pixel), which blur and
+  the threshold do not move. Codes with fewer than two white slots have
+  too few rectangles for a homography: their perspective comes from the
+  disc's rim (the polar of the centre is the vanishing line).
+* the paper's mean threshold first; when it fails, Otsu's, a higher one
+  (blur joining parts), a local mean (dark surroundings) and an opened mask
+  (a cable across the face), in turn.
 * verification: gray levels sampled through the homography at all five slot
   positions must show exactly one thin white rectangle (the directional one)
   and wide white or black coded slots that agree with the contours. A crop
@@ -225,7 +232,8 @@ class DecodeResult:
         image_H_sign: (3, 3) homography from the sign plane, in units of the
             disc diameter (x right, y up, origin at the centre), to image
             pixels; None when there is no code.
-        residual_px: RMS residual of the homography fit [px].
+        residual_px: RMS residual of the homography fit [px]; NaN when the
+            fit is exact (four or fewer rectangles).
     """
 
     code: str | None
