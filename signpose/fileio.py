@@ -12,6 +12,13 @@ from typing import IO
 from signpose.errors import OutputError
 
 
+def _umask_mode() -> int:
+    """File mode a plain ``open()`` would give (mkstemp alone would leave 0600)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def ensure_dir(path: str | os.PathLike) -> Path:
     """Create ``path`` (and parents) or raise OutputError naming it."""
     p = Path(path)
@@ -38,6 +45,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator
     except OSError as exc:
         raise OutputError(f"{target}: cannot write here ({exc.strerror})") from None
     try:
+        os.chmod(tmp, _umask_mode())
         with os.fdopen(fd, mode, **kwargs) as handle:
             yield handle
             handle.flush()
@@ -67,6 +75,7 @@ def _atomic_path(target: Path) -> Iterator[Path]:
     except OSError as exc:
         raise OutputError(f"{target}: cannot write here ({exc.strerror})") from None
     os.close(fd)
+    os.chmod(tmp, _umask_mode())
     tmp_path = Path(tmp)
     try:
         yield tmp_path
