@@ -106,6 +106,7 @@ class SmootherSettings:
     isam_final_updates: int = 20
     isam_relinearize_skip: int = 10
     isam_wildfire: float = 0.01
+    isam_landmarks_last: bool = True
     isam_init_gate_m: float = 1.0
     compute_sigmas: bool = True
     max_sigma_frames: int = 2000
@@ -565,7 +566,20 @@ def smooth_isam2(
             added_lm.add(j)
         if i > 0:
             b.motion_factor(i, graph)
-        isam.update(graph, values)
+        if s.isam_landmarks_last:
+            upd = gtsam.ISAM2UpdateParams()
+            groups = gtsam.KeyGroupMap()
+            for j in added_lm:
+                groups.insert2(L(j), 2)
+            if s.motion == CONSTANT_VELOCITY:
+                groups.insert2(BIAS_KEY, 2)
+            groups.insert2(X(i), 1)
+            if s.motion == CONSTANT_VELOCITY:
+                groups.insert2(V(i), 1)
+            upd.constrainedKeys = groups
+            isam.update(graph, values, upd)
+        else:
+            isam.update(graph, values)
         prev_pose = isam.calculateEstimatePose3(X(i))
         if s.motion == CONSTANT_VELOCITY:
             prev_vel = np.asarray(isam.calculateEstimateVector(V(i))).reshape(3)

@@ -101,7 +101,9 @@ def test_smoother_exact_without_noise():
     sign_map, camera, frames, gt, _ = estimator_scene(n_frames=20, flat=False)
     # The motion prior is a (wrong) constraint in its own right; made loose here,
     # exact projections and exact landmark priors leave the true poses optimal.
-    loose = SmootherSettings(compute_sigmas=False, rw_sigma_pos=1e3, rw_sigma_rot=1e3)
+    loose = SmootherSettings(
+        compute_sigmas=False, motion="random-walk", rw_sigma_pos=1e3, rw_sigma_rot=1e3
+    )
     settings = EstimatorSettings(methods=("smoothed",), smoother=loose)
     r = estimate_trajectories(frames, sign_map, camera, settings, progress=False)
     assert _pos_err(r.methods["smoothed"].world_T_cam, gt).max() < 1e-6
