@@ -49,6 +49,14 @@ def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
     return sim.frames_path, sim.groundtruth_path, sim.camera, elapsed
 
 
+def result_estimator_timing(run_dir: Path) -> dict:
+    """The estimator's own split (baseline, pnp, smoothed, sigmas) from report.json."""
+    try:
+        return json.loads((run_dir / "report.json").read_text()).get("timing_s", {})
+    except (OSError, ValueError):
+        return {}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--frames", type=int, default=1000, help="frames (default 1000)")
@@ -63,16 +71,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", type=Path, help="write the numbers here")
     p.add_argument("--no-plots", action="store_true", help="time the run without PNG plots")
     p.add_argument("--no-tracking", action="store_true", help="full-frame detection every frame")
+    p.add_argument("--no-sigmas", action="store_true", help="skip the smoother's marginal sigmas")
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
 
+    from estimator.estimate import EstimatorSettings
+    from estimator.smoother import SmootherSettings
     from maps.loader import bundled_map_path, load_map
     from signpose.pipeline import ObserveSettings, RunSettings, run
 
     args.work.mkdir(parents=True, exist_ok=True)
     video, gt, camera, sim_s = _flight(args.work, args.frames, args.width, args.height, args.quiet)
     settings = RunSettings(
-        observe=ObserveSettings(tracking=not args.no_tracking), plots=not args.no_plots
+        observe=ObserveSettings(tracking=not args.no_tracking),
+        estimator=EstimatorSettings(smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)),
+        plots=not args.no_plots,
     )
     t0 = time.perf_counter()
     result = run(
@@ -101,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     print(
         "position RMSE: " + ", ".join(f"{k} {v:.3f} m" for k, v in result.position_rmse_m.items())
     )
+    est = result_estimator_timing(args.work / "run")
+    if est:
+        print("estimator split [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in est.items()))
     if sim_s:
         print(f"(simulation, not timed above: {sim_s:.1f} s)")
     if args.json:
@@ -116,6 +132,8 @@ def main(argv: list[str] | None = None) -> int:
             "coverage": result.coverage,
             "position_rmse_m": result.position_rmse_m,
             "tracking": not args.no_tracking,
+            "sigmas": not args.no_sigmas,
+            "estimator_timing_s": result_estimator_timing(args.work / "run"),
             "plots": not args.no_plots,
             "cpu_count": os.cpu_count(),
             "python": platform.python_version(),

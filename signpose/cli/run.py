@@ -33,6 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--workers", type=int, default=0, help="frames detected at once (default: 2 if >1 core)"
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument(
+        "--no-sigmas",
+        action="store_true",
+        help="skip the smoother's marginal sigmas (faster on long flights; no sigma bands)",
+    )
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -59,6 +64,7 @@ def print_result(result, out=None) -> None:
 def run(args: argparse.Namespace) -> int:
     from estimator.camera import load_camera
     from estimator.estimate import EstimatorSettings
+    from estimator.smoother import SmootherSettings
     from maps.loader import load_map
     from signpose.pipeline import ObserveSettings, RunSettings
     from signpose.pipeline import run as run_pipeline
@@ -69,7 +75,9 @@ def run(args: argparse.Namespace) -> int:
         observe=ObserveSettings(
             codes=args.codes, tracking=not args.no_tracking, workers=args.workers
         ),
-        estimator=EstimatorSettings(solver=args.solver),
+        estimator=EstimatorSettings(
+            solver=args.solver, smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)
+        ),
         with_images=args.with_images,
         plots=not args.no_plots,
     )
