@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from estimator.camera import pinhole_camera
+from estimator.estimate import EstimatorSettings, gate_measurements
 from estimator.metrics import Metrics, compute_metrics, format_table
 from estimator.perframe import PerFrameSettings, run_per_frame
 from estimator.smoother import (
@@ -62,7 +63,12 @@ def run_scenario(sign_map, camera, flight, n_frames, fault, sigma_px, seed, moti
     pnp = run_per_frame(frames, sign_map, camera, "pnp", pf)
     out["baseline"] = compute_metrics(_traj(stamps, [p.world_T_cam for p in base]), gt)
     out["pnp"] = compute_metrics(_traj(stamps, [p.world_T_cam for p in pnp]), gt)
-    meas = collect_measurements(frames, sign_map, camera)
+    meas, _ = gate_measurements(
+        collect_measurements(frames, sign_map, camera),
+        [p.world_T_cam for p in pnp],
+        camera,
+        EstimatorSettings().gate_px,
+    )
     init = [
         a.world_T_cam if a.world_T_cam is not None else b.world_T_cam
         for a, b in zip(pnp, base, strict=True)
