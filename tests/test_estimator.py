@@ -209,3 +209,23 @@ def test_synthetic_faults_and_off_image_points():
     assert len(truth.wrong_code) == sum(len(f.signs) for f in frames[:3])
     assert all(isinstance(f, FrameObservations) for f in fr)
     assert len(truth.false_obs) > 0
+
+
+def test_gross_outliers_are_gated_and_reported():
+    from estimator.estimate import gate_measurements
+    from estimator.smoother import collect_measurements
+
+    sign_map, camera, frames, gt, _ = estimator_scene(n_frames=6, sigma_px=0.3, flat=False)
+    f = frames[2]
+    bad = replace(f.signs[0], keypoints_px={"center": (10.0, 10.0)})
+    frames[2] = replace(f, signs=(bad, *f.signs[1:]))
+    meas = collect_measurements(frames, sign_map, camera)
+    kept, gated = gate_measurements(meas, list(gt.world_T_cam()), camera, 30.0)
+    assert gated.sum() == 1 and len(kept.frame) == len(meas.frame) - 1
+    hit = np.nonzero(gated)[0][0]
+    assert meas.frame[hit] == 2 and meas.sign_index[hit] == 0
+    r = estimate_trajectories(
+        frames, sign_map, camera, EstimatorSettings(methods=("smoothed",)), progress=False
+    )
+    zero = [o for o in r.outliers.downweighted if o.weight == 0.0]
+    assert [(o.frame, o.code) for o in zero] == [(2, bad.code)]
