@@ -215,3 +215,31 @@ def test_plots_from_fake_data(tmp_path):
     assert not list(tmp_path.glob(".*"))  # no temp files
     assert plot_errors(tmp_path / "none.png", PlotData(sign_map, {"smoothed": gt})) is None
     assert not (tmp_path / "none.png").exists()
+
+
+def test_run_with_the_real_detector(tmp_path):
+    """End to end with the trained cascade and the decoder on a few 960x540 frames."""
+    sim = simulate_tiny_size(tmp_path / "flight", frames=4, width=960, height=540)
+    sign_map = load_map(bundled_map_path())
+    result = pipeline.run(
+        sim.frames_path,
+        sign_map,
+        tmp_path / "run",
+        camera=sim.camera,
+        gt_path=sim.groundtruth_path,
+        settings=pipeline.RunSettings(plots=False),
+        progress=False,
+    )
+    frames = read_observations(tmp_path / "run" / "observations.jsonl")
+    assert len(frames) == 4
+    assert all(len(f.signs) >= 3 for f in frames)
+    assert all(s.code in sign_map.codes for f in frames for s in f.signs)
+    assert result.coverage["pnp"] == pytest.approx(1.0)
+    assert result.position_rmse_m["pnp"] < 1.0
+
+
+def simulate_tiny_size(out: Path, frames: int, width: int, height: int):
+    from signpose.simulate import SimSettings, simulate
+
+    settings = SimSettings(frames=frames, width=width, height=height)
+    return simulate(load_map(bundled_map_path()), out, settings, progress=False)
