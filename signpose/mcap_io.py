@@ -449,6 +449,7 @@ def write_result_mcap(
     camera: CameraModel | None = None,
     images: Iterable[tuple[int, np.ndarray]] | None = None,
     jpeg_quality: int = 85,
+    progress: bool = False,
 ) -> None:
     """The result log for Foxglove, written atomically.
 
@@ -461,7 +462,11 @@ def write_result_mcap(
             the first) drives ``/tf`` world -> camera. NaN positions are skipped.
         camera: written once as foxglove.CameraCalibration when given.
         images: (stamp_ns, image) pairs, written as JPEG foxglove.CompressedImage.
+        jpeg_quality: JPEG quality of the images.
+        progress: show a tqdm bar over frames.
     """
+    from tqdm import tqdm
+
     world = sign_map.frame
     t0 = frames[0].stamp_ns if frames else 0
     tf_name = "smoothed" if "smoothed" in trajectories else next(iter(trajectories), None)
@@ -475,7 +480,7 @@ def write_result_mcap(
         writer.write(SCENE_TOPIC, "SceneUpdate", scene_update(t0, sign_map, trajectories), t0)
         if camera is not None:
             writer.write(CALIBRATION_TOPIC, "CameraCalibration", camera_calibration(t0, camera), t0)
-        for obs in frames:
+        for obs in tqdm(frames, desc="result.mcap", unit="frame", disable=not progress):
             t = obs.stamp_ns
             if image_iter is not None:
                 item = next(image_iter, None)

@@ -607,7 +607,13 @@ def run(
             images = ((f.stamp_ns, f.image) for f in open_source(input_path, topic=topic, fps=fps))
         valid = {k: _valid_only(v) for k, v in trajs.items()}
         mcap_io.write_result_mcap(
-            out / RESULT_MCAP_NAME, sign_map, list(obs.frames), valid, cam, images
+            out / RESULT_MCAP_NAME,
+            sign_map,
+            list(obs.frames),
+            valid,
+            cam,
+            images,
+            progress=progress,
         )
         files.append(out / RESULT_MCAP_NAME)
     comparison, table = None, ""
