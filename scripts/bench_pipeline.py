@@ -49,6 +49,14 @@ def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
     return sim.frames_path, sim.groundtruth_path, sim.camera, elapsed
 
 
+def _cpu_s() -> float:
+    """User + system CPU time of this process and its threads [s]."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
 def result_estimator_timing(run_dir: Path) -> dict:
     """The estimator's own split (baseline, pnp, smoothed, sigmas) from report.json."""
     try:
@@ -87,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         estimator=EstimatorSettings(smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)),
         plots=not args.no_plots,
     )
+    cpu0 = _cpu_s()
     t0 = time.perf_counter()
     result = run(
         video,
@@ -98,11 +107,17 @@ def main(argv: list[str] | None = None) -> int:
         progress=not args.quiet,
     )
     wall = time.perf_counter() - t0
+    cpu = _cpu_s() - cpu0
     n = result.n_frames
     t = result.timing_s
     print(
         f"signpose run: {n} frames {args.width}x{args.height}, {wall:.1f} s wall, "
         f"{n / wall:.1f} frames/s (target >= 15; paper 6.5) on {os.cpu_count()} cores"
+    )
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(
+        f"CPU time {cpu:.1f} s ({1000 * cpu / max(n, 1):.0f} ms/frame, {cpu / wall:.2f} cores busy "
+        f"on average); 1-min load average at the end {load:.1f}"
     )
     print(f"{'stage':32s} {'total [s]':>10s} {'ms/frame':>9s} {'share':>7s}")
     for key, label in STAGES:
@@ -124,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
             "frames": n,
             "size": [args.width, args.height],
             "wall_s": round(wall, 3),
+            "cpu_s": round(cpu, 3),
             "frames_per_second": round(n / wall, 3),
             "stages_s": {k: round(t.get(k, 0.0), 4) for k, _ in STAGES},
             "stages_ms_per_frame": {
