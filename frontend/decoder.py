@@ -517,6 +517,21 @@ def _affine_from_two(
     return h
 
 
+def _border_run(contour: np.ndarray, w: int, h: int) -> float:
+    """Longest stretch [px] of ``contour`` along one side of the (w, h) crop.
+
+    A disc cut by the crop's edge lies along it for a chord; a cable that
+    joins the disc to the edge touches it for a few pixels only.
+    """
+    pts = contour.reshape(-1, 2)
+    best = 0.0
+    for axis, value in ((0, 0), (0, w - 1), (1, 0), (1, h - 1)):
+        on = pts[pts[:, axis] == value]
+        if len(on) >= 2:
+            best = max(best, float(np.ptp(on[:, 1 - axis])))
+    return best
+
+
 def _inside(points: np.ndarray, w: int, h: int, margin: float) -> bool:
     return bool(
         (points[:, 0] >= -0.5 + margin).all()
@@ -571,7 +586,7 @@ def decode_roi(
     if g.ndim != 2 or min(g.shape) < settings.min_sign_px:
         return _fail("no_sign")
     allowed = None if codes is None else frozenset(codes)
-    best = _fail("no_sign")
+    best: DecodeResult | None = None
     for kind in settings.thresholds:
         dark = _dark_mask(g, kind)
         if dark is None:
@@ -584,9 +599,11 @@ def decode_roi(
             res = _decode_at(g, dark, allowed, settings)
         if res.code is not None or res.reason == "code_not_in_map":
             return res
-        if _REASON_RANK[res.reason] > _REASON_RANK[best.reason]:
+        if best is None:
+            # The first binarisation (the paper's) names the failure; the
+            # fallbacks' noisier masks would only blur the reason.
             best = res
-    return best
+    return best if best is not None else _fail("no_sign")
 
 
 def _open_kernel(g: np.ndarray) -> np.ndarray:
@@ -751,7 +768,7 @@ def _decode_region_contour(
                 rel,
                 radius,
                 whitener,
-                touches,
+                touches and _border_run(outer, w, h) >= max(4.0, 0.15 * math.sqrt(area)),
                 rim_contour,
                 area if disc_like else None,
                 allowed,
@@ -772,7 +789,7 @@ def _try_hypothesis(
     rel: np.ndarray,
     radius: np.ndarray,
     whitener: np.ndarray,
-    touches_border: bool,
+    touches_border: bool,  # along a chord, not just a cable's width
     rim_contour: np.ndarray | None,
     disc_area: float | None,
     allowed: frozenset[str] | None,
