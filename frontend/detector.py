@@ -103,8 +103,8 @@ class DetectorSettings:
     group_eps: float = 0.2
     fast_dark_margin: float = 25.0
     fast_min_range: int = 50
-    fast_roi_grow: float = 0.45
-    fast_scale: tuple[float, float] = (0.6, 1.7)
+    fast_roi_grow: float = 0.6
+    fast_scale: tuple[float, float] = (0.6, 1.9)
     fast_small_min_px: int = 16
     track_margin: float = 0.6
     track_scale: tuple[float, float] = (0.7, 1.45)
@@ -378,27 +378,31 @@ class SignDetector:
         low = cv2.erode(half, np.ones((3, 3), np.uint8))
         high = cv2.dilate(half, np.ones((7, 7), np.uint8))
         dark_thr = float(np.percentile(low[::4, ::4], 0.5)) + s.fast_dark_margin
-        cand = (low <= dark_thr).astype(np.uint8)
-        # Opening removes conductors and thin lines (also where they cross a sign).
-        cand = cv2.morphologyEx(cand, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
-        _, _, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8)
+        dark = (low <= dark_thr).astype(np.uint8)
         rois = []
-        for bx, by, bw, bh, area in stats[1:].tolist():
-            # A disc's blob is compact: it fills its box and is at most ~3:1
-            # (65 degree view); conductors and lattice bars are long and thin.
-            if area < 0.3 * bw * bh or max(bw, bh) > 3 * min(bw, bh) or max(bw, bh) < 3:
-                continue
-            # Its white parts (or the background) are bright next to the black.
-            if int(high[by : by + bh, bx : bx + bw].max()) - dark_thr < s.fast_min_range:
-                continue
-            x0, y0, bw, bh = 2 * bx, 2 * by, 2 * bw, 2 * bh
-            size = float(max(bw, bh))
-            if size > s.max_size_frac * min(h, w) * 1.5:
-                continue  # a dark mass far bigger than any sign we look for
-            grow = s.fast_roi_grow * size + 8
-            x1, y1 = int(min(x0 + bw + grow, w)), int(min(y0 + bh + grow, h))
-            x0, y0 = int(max(x0 - grow, 0)), int(max(y0 - grow, 0))
-            rois.append((x0, y0, x1 - x0, y1 - y0, size))
+        # Opening removes conductors and thin bars, also where they touch a
+        # sign; a wider opening frees big signs from thicker (near) conductors.
+        for k in (5, 11):
+            cand = cv2.morphologyEx(dark, cv2.MORPH_OPEN, np.ones((k, k), np.uint8))
+            _, _, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8)
+            for bx, by, bw, bh, area in stats[1:].tolist():
+                # A disc's blob is compact: it fills its box and is at most ~3:1
+                # (65 degree view); conductors and lattice bars are long and thin.
+                if area < 0.3 * bw * bh or max(bw, bh) > 3 * min(bw, bh) or max(bw, bh) < 3:
+                    continue
+                # Its white parts (or the background) are bright next to the black.
+                if int(high[by : by + bh, bx : bx + bw].max()) - dark_thr < s.fast_min_range:
+                    continue
+                x0, y0, bw, bh = 2 * bx, 2 * by, 2 * bw, 2 * bh
+                size = float(max(bw, bh))
+                if size > s.max_size_frac * min(h, w) * 1.5:
+                    continue  # a dark mass far bigger than any sign we look for
+                grow = s.fast_roi_grow * size + 8
+                x1, y1 = int(min(x0 + bw + grow, w)), int(min(y0 + bh + grow, h))
+                x0, y0 = int(max(x0 - grow, 0)), int(max(y0 - grow, 0))
+                roi = (x0, y0, x1 - x0, y1 - y0, size)
+                if roi not in rois:
+                    rois.append(roi)
         return rois
 
     def _fast_raw(self, gray: np.ndarray) -> np.ndarray:
