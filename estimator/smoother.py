@@ -92,10 +92,10 @@ class SmootherSettings:
 
     huber_k: float = 2.45
     motion: str = CONSTANT_VELOCITY
-    rw_sigma_rot: float = 0.05
+    rw_sigma_rot: float = 0.2
     rw_sigma_pos: float = 0.2
-    cv_sigma_acc: float = 1.0
-    cv_sigma_rot: float = 0.05
+    cv_sigma_acc: float = 2.0
+    cv_sigma_rot: float = 0.2
     first_sigma_m: float = 100.0
     first_sigma_rad: float = 3.0
     first_sigma_mps: float = 30.0
