@@ -86,6 +86,7 @@ class DetectorSettings:
             the predicted radius.
         track_scale: (lo, hi) window size range relative to the predicted
             diameter.
+        track_scale_factor: window growth between sizes when tracking.
         track_min_found_frac: tracking searches the full frame when it finds
             fewer than this fraction of the predicted signs...
         track_refresh_frames: ...or when any predicted sign is missing and
@@ -106,8 +107,9 @@ class DetectorSettings:
     fast_roi_grow: float = 0.6
     fast_scale: tuple[float, float] = (0.6, 1.9)
     fast_small_min_px: int = 16
-    track_margin: float = 0.6
-    track_scale: tuple[float, float] = (0.7, 1.45)
+    track_margin: float = 0.4
+    track_scale: tuple[float, float] = (0.8, 1.4)
+    track_scale_factor: float = 1.12
     track_min_found_frac: float = 0.5
     track_refresh_frames: int = 10
     decode: bool = True
@@ -558,7 +560,7 @@ class SignDetector:
             roi = gray[y0:y1, x0:x1]
             lo, hi = s.track_scale[0] * diam, s.track_scale[1] * diam
             zoom = 1.0 if lo >= WINDOW_PX else WINDOW_PX / max(lo, 8.0)
-            r = self._raw_scaled(roi, zoom, lo, hi, sf=1.08)
+            r = self._raw_scaled(roi, zoom, lo, hi, sf=s.track_scale_factor)
             r[:, :2] += (x0, y0)
             parts.append(r)
         raw = np.concatenate(parts) if parts else np.zeros((0, 4))
