@@ -292,12 +292,6 @@ def _as_gray(image: np.ndarray) -> np.ndarray:
     return img
 
 
-def _box_runs(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
-    """Bounding boxes (x, y, w, h) of the 8-connected components of a boolean mask."""
-    n, _, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    return [tuple(int(v) for v in stats[i, :4]) for i in range(1, n)]
-
-
 class SignDetector:
     """The trained cascade plus the paper's merge and the decoder.
 
