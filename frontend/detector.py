@@ -560,11 +560,12 @@ class SignDetector:
         raw = np.concatenate(parts) if parts else np.zeros((0, 4))
         timing = {"cascade": (time.perf_counter() - t0) * 1e3}
         res = self._finish(gray, raw, codes, "track", timing, t0)
-        wanted = {c for c, _, _ in predictions}
+        # Signs predicted (partly) outside the image cannot be required.
+        wanted = {c for c, (u, v), _d in predictions if 0 <= u < w and 0 <= v < h}
         found = {d.code for d in res.detections} & wanted
         self._since_full += 1
         enough = len(found) >= max(1.0, s.track_min_found_frac * len(wanted))
-        if found == wanted or (enough and self._since_full < s.track_refresh_frames):
+        if wanted and (found == wanted or (enough and self._since_full < s.track_refresh_frames)):
             return res
         self._since_full = 0
         full = self.detect(gray, codes, "fast")
