@@ -52,6 +52,9 @@ class PerFrameSettings:
         min_aspect: second over first principal spread below this => collinear.
         pnp_ransac: run PnP inside RANSAC (solvePnPRansac) before refining.
         planar_tol_m: PnP uses IPPE when all points lie within this of a plane [m].
+        warm_start_min_signs: with a prior pose and at least this many signs,
+            PnP trusts LM from the prior when every keypoint then fits within
+            ``ransac_px`` and skips RANSAC.
     """
 
     ransac_px: float = 3.0
@@ -62,6 +65,7 @@ class PerFrameSettings:
     min_aspect: float = 0.02
     pnp_ransac: bool = True
     planar_tol_m: float = 1e-3
+    warm_start_min_signs: int = 4
 
 
 @dataclass(frozen=True)
@@ -95,6 +99,23 @@ class _Correspondences:
     px: np.ndarray  # (N, 2) undistorted pixels
 
 
+# MapSign.keypoints_world() rebuilds the sign's geometry on every call (~0.5 ms
+# per sign, most of the per-frame time on a 10-sign map); signs are frozen, so
+# their keypoints are cached, keyed by identity (the value holds the sign so
+# its id cannot be reused while cached).
+_KEYPOINTS_CACHE: dict[int, tuple[object, dict[str, np.ndarray]]] = {}
+
+
+def _keypoints_world(sign) -> dict[str, np.ndarray]:
+    hit = _KEYPOINTS_CACHE.get(id(sign))
+    if hit is None or hit[0] is not sign:
+        if len(_KEYPOINTS_CACHE) > 4096:
+            _KEYPOINTS_CACHE.clear()
+        hit = (sign, sign.keypoints_world())
+        _KEYPOINTS_CACHE[id(sign)] = hit
+    return hit[1]
+
+
 def _correspondences(
     frame: FrameObservations, sign_map: SignMap, camera: CameraModel, all_keypoints: bool
 ) -> _Correspondences:
@@ -104,7 +125,7 @@ def _correspondences(
         sign = sign_map.sign(obs.code)
         if sign is None:  # robustness rule 1: decoded codes absent from the map
             continue
-        kw = sign.keypoints_world()
+        kw = _keypoints_world(sign)
         wanted = kw if all_keypoints else {"center": kw["center"]}
         for name, X in wanted.items():
             if name in obs.keypoints_px:
@@ -133,6 +154,31 @@ def _reproject_rms(camera: CameraModel, world_T_cam: np.ndarray, X: np.ndarray, 
     Xc = X @ cam_T_world[:3, :3].T + cam_T_world[:3, 3]
     uv = Xc[:, :2] / Xc[:, 2:3] * [camera.fx, camera.fy] + [camera.cx, camera.cy]
     return float(np.sqrt(np.mean(np.sum((uv - px) ** 2, axis=1)))), Xc[:, 2]
+
+
+def _reproject_errors(
+    camera: CameraModel, world_T_cam: np.ndarray, X: np.ndarray, px: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) reprojection error [px] and (N,) depth [m] of world points X."""
+    R = world_T_cam[:3, :3]
+    Xc = (X - world_T_cam[:3, 3]) @ R
+    z = np.where(np.abs(Xc[:, 2]) < 1e-12, 1e-12, Xc[:, 2])
+    uv = Xc[:, :2] / z[:, None] * [camera.fx, camera.fy] + [camera.cx, camera.cy]
+    return np.linalg.norm(uv - px, axis=1), Xc[:, 2]
+
+
+def _warm_start(X, x, K, dist, prior_world_T_cam: np.ndarray):
+    """(rvec, tvec) from Levenberg-Marquardt started at the prior pose, or None."""
+    R0 = prior_world_T_cam[:3, :3].T
+    rvec0, _ = cv2.Rodrigues(R0)
+    tvec0 = (-R0 @ prior_world_T_cam[:3, 3]).reshape(3, 1)
+    try:
+        rvec, tvec = cv2.solvePnPRefineLM(X, x, K, dist, rvec0.copy(), tvec0.copy())
+    except cv2.error:
+        return None
+    if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+        return None
+    return np.asarray(rvec, float).reshape(3, 1), np.asarray(tvec, float).reshape(3, 1)
 
 
 def _orthonormal(R: np.ndarray) -> np.ndarray:
@@ -285,8 +331,11 @@ def solve_frame_pnp(
 
     SQPnP for general point sets, IPPE when the points are planar, then
     Levenberg-Marquardt refinement (``cv2.solvePnPRefineLM``). With
-    ``prior_world_T_cam`` (e.g. the previous frame's pose) an iterative solve
-    from the prior is also tried and the lower reprojection error wins.
+    ``prior_world_T_cam`` (e.g. the previous frame's pose) Levenberg-Marquardt
+    from the prior comes first: when every keypoint then reprojects within
+    ``ransac_px`` that pose is the answer (RANSAC could only keep them all);
+    otherwise it is one more candidate beside RANSAC's and the lower
+    reprojection error over the inliers wins.
 
     Args:
         frame_obs: the frame's observations (raw pixels).
@@ -311,11 +360,31 @@ def solve_frame_pnp(
     dist = np.zeros(5)
     X = c.world.reshape(-1, 1, 3)
     x = c.px.reshape(-1, 1, 2)
-    centred = c.world - c.world.mean(axis=0)
-    planar = np.linalg.svd(centred, compute_uv=False)[2] / np.sqrt(len(c.world)) < s.planar_tol_m
     inliers = np.ones(len(c.world), bool)
     candidates: list[tuple[np.ndarray, np.ndarray]] = []
+    if prior_world_T_cam is not None:
+        # Warm start: LM from the prior on all points. When every point then
+        # reprojects within the RANSAC threshold, RANSAC would keep them all and
+        # end in the same LM refinement, so it is skipped (~10x cheaper). Only
+        # with several signs: one or two nearly coplanar signs have a second,
+        # mirrored minimum that LM from a distant prior can fall into.
+        warm = _warm_start(X, x, K, dist, prior_world_T_cam)
+        if warm is not None:
+            rvec, tvec = warm
+            T = _pose_from_rt(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
+            err, depth = _reproject_errors(camera, T, c.world, c.px)
+            if (
+                len(distinct) >= s.warm_start_min_signs
+                and np.all(depth > 0)
+                and np.all(np.isfinite(err))
+                and err.max() < s.ransac_px
+            ):
+                used = tuple(distinct)
+                rms = float(np.sqrt(np.mean(err**2)))
+                return FramePose(f.frame, f.stamp_ns, T, "", len(used), used, rms)
+            candidates.append((rvec, tvec))
     try:
+        ransac_ok = False
         if s.pnp_ransac and len(c.world) >= 6:
             ok, rvec, tvec, idx = cv2.solvePnPRansac(
                 X, x, K, dist, reprojectionError=s.ransac_px, flags=cv2.SOLVEPNP_SQPNP
@@ -324,7 +393,11 @@ def solve_frame_pnp(
                 inliers = np.zeros(len(c.world), bool)
                 inliers[idx.reshape(-1)] = True
                 candidates.append((rvec, tvec))
-        if not candidates:
+                ransac_ok = True
+        if not ransac_ok:
+            centred = c.world - c.world.mean(axis=0)
+            sv = np.linalg.svd(centred, compute_uv=False)
+            planar = sv[2] / np.sqrt(len(c.world)) < s.planar_tol_m
             if planar:
                 n, rvecs, tvecs, _ = cv2.solvePnPGeneric(X, x, K, dist, flags=cv2.SOLVEPNP_IPPE)
                 candidates += list(zip(rvecs, tvecs, strict=False))[:n]
@@ -332,17 +405,8 @@ def solve_frame_pnp(
                 ok, rvec, tvec = cv2.solvePnP(X, x, K, dist, flags=cv2.SOLVEPNP_SQPNP)
                 if ok:
                     candidates.append((rvec, tvec))
-        if prior_world_T_cam is not None:
-            cam_T_world = np.linalg.inv(prior_world_T_cam)
-            rvec0, _ = cv2.Rodrigues(cam_T_world[:3, :3])
-            tvec0 = cam_T_world[:3, 3].reshape(3, 1).copy()
-            ok, rvec, tvec = cv2.solvePnP(
-                X, x, K, dist, rvec0.copy(), tvec0, True, flags=cv2.SOLVEPNP_ITERATIVE
-            )
-            if ok:
-                candidates.append((rvec, tvec))
     except cv2.error:
-        candidates = []
+        pass
     best = None
     for rvec, tvec in candidates:
         rvec = np.asarray(rvec, dtype=float).reshape(3, 1).copy()
