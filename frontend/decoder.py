@@ -63,6 +63,7 @@ from frontend.homography import (
     fit_affine,
     fit_homography,
     polygon_centroids,
+    prepare_source,
 )
 from frontend.sign import N_BITS, sign_shape, slot_angle_rad
 
@@ -126,6 +127,7 @@ _S_DIR_LEN = slice(_N_SLOT_SAMPLES, _N_SLOT_SAMPLES + 2)
 _S_BLACK = slice(_N_SLOT_SAMPLES + 2, _N_SLOT_SAMPLES + 2 + 15)
 _S_LOC = slice(_N_SLOT_SAMPLES + 17, _N_SLOT_SAMPLES + 22)
 _S_AROUND = slice(_N_SLOT_SAMPLES + 22, _N_SLOT_SAMPLES + 30)
+_SLOT_STARTS = tuple(range(0, _N_SLOT_SAMPLES, _N_OFFSETS))
 # Disc rim points that must lie inside the crop for a reading to count.
 _RIM = 0.46 * np.stack(
     [
@@ -135,7 +137,6 @@ _RIM = 0.46 * np.stack(
     axis=1,
 )
 # Expected (centre, mean across) of a slot, as fractions black -> white.
-_PIXEL_COV = np.eye(2) / 12.0
 _UNIT_STEPS = np.array([[0.0, 0.0], [0.01, 0.0], [0.0, 0.01]])
 _ARANGE = np.arange(4096, dtype=np.float32)
 
@@ -163,10 +164,9 @@ def _project(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return cv2.perspectiveTransform(xy.reshape(-1, 1, 2), h).reshape(-1, 2)
 
 
-_FLIP_COLS = np.array([1.0, -1.0])  # right-multiplies: flips the v column
-_CLASS_BLACK = np.array([0.0, 0.0])
-_CLASS_DIRECTION = np.array([1.0, 0.4])
-_CLASS_CODED = np.array([1.0, 0.85])
+_CLASS_BLACK = (0.0, 0.0)
+_CLASS_DIRECTION = (1.0, 0.4)
+_CLASS_CODED = (1.0, 0.85)
 
 
 @dataclass(frozen=True)
@@ -254,7 +254,7 @@ class DecodeResult:
 class _Hole:
     centroid: np.ndarray  # (2,) px
     area: float  # px^2 (contour polygon)
-    cov: np.ndarray  # (2, 2) second central moments / area [px^2]
+    cov: tuple[float, float, float]  # second central moments / area (uu, uv, vv) [px^2]
     aspect: float
 
 
@@ -262,19 +262,17 @@ def _fail(reason: str, quality: float = 0.0, ellipse: Ellipse | None = None) -> 
     return DecodeResult(code=None, reason=reason, quality=quality, ellipse=ellipse)
 
 
-def _moments(contour: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
+def _moments(contour: np.ndarray) -> tuple[float, float, float, tuple[float, float, float]] | None:
+    """(area, cu, cv, (uu, uv, vv)) of a contour polygon, in plain floats."""
     m = cv2.moments(contour)
     a = m["m00"]
     if a <= 0:
         return None
-    c = np.array([m["m10"] / a, m["m01"] / a])
-    cov = np.array([[m["mu20"], m["mu11"]], [m["mu11"], m["mu02"]]]) / a
-    return a, c, cov
+    return a, m["m10"] / a, m["m01"] / a, (m["mu20"] / a, m["mu11"] / a, m["mu02"] / a)
 
 
-def _eig2(cov: np.ndarray) -> tuple[float, float]:
-    """Eigenvalues (small, large) of a symmetric 2x2 matrix."""
-    a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+def _eig2(a: float, b: float, c: float) -> tuple[float, float]:
+    """Eigenvalues (small, large) of the symmetric 2x2 matrix [[a, b], [b, c]]."""
     m = 0.5 * (a + c)
     r = math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
     return m - r, m + r
@@ -287,26 +285,29 @@ def _hole(contour: np.ndarray, area: float) -> _Hole:
         pts = contour.reshape(-1, 2).astype(float)
         c = pts.mean(axis=0)
         d = pts - c
-        cov = d.T @ d / len(pts)
+        m = d.T @ d / len(pts)
+        cov = (float(m[0, 0]), float(m[0, 1]), float(m[1, 1]))
         area = float(len(pts))
     else:
-        area, c, cov = mo
-    cov = cov + _PIXEL_COV  # a pixel's own extent
-    lo, hi = _eig2(cov)
+        area, cu, cv, cov = mo
+        c = np.array([cu, cv])
+    # A pixel's own extent.
+    cov = (cov[0] + 1.0 / 12.0, cov[1], cov[2] + 1.0 / 12.0)
+    lo, hi = _eig2(*cov)
     aspect = math.sqrt(hi / max(lo, 1e-9))
     return _Hole(centroid=c, area=area, cov=cov, aspect=aspect)
 
 
-def _whitener(cov: np.ndarray, variance_per_unit: float) -> np.ndarray | None:
+def _whitener(cov: tuple[float, float, float], variance_per_unit: float) -> np.ndarray | None:
     """(2, 2) map from image offsets [px] to sign-plane units (y up), up to a rotation.
 
-    ``cov`` is the image second-moment matrix of a shape whose sign-plane
-    second moments are ``variance_per_unit * I`` (a disc or a square). The
-    inverse square root undoes the affine part of the view; the v-axis flip
-    keeps the result a proper rotation away from the sign frame.
+    ``cov`` (uu, uv, vv) is the image second-moment matrix of a shape whose
+    sign-plane second moments are ``variance_per_unit * I`` (a disc or a
+    square). The inverse square root undoes the affine part of the view; the
+    v-axis flip keeps the result a proper rotation away from the sign frame.
     """
     # Flip v (down) to y (up): the off-diagonal term changes sign.
-    a, b, c = float(cov[0, 0]), -float(cov[0, 1]), float(cov[1, 1])
+    a, b, c = cov[0], -cov[1], cov[2]
     det = a * c - b * b
     if det <= 1e-12 or a <= 0:
         return None
@@ -314,15 +315,14 @@ def _whitener(cov: np.ndarray, variance_per_unit: float) -> np.ndarray | None:
     sq = math.sqrt(det)
     t = math.sqrt(a + c + 2 * sq)
     k = math.sqrt(variance_per_unit) / (sq * t)
-    inv_sqrt = k * np.array([[c + sq, -b], [-b, a + sq]])
-    return inv_sqrt * _FLIP_COLS
+    return np.array([[k * (c + sq), k * b], [-k * b, -k * (a + sq)]])
 
 
-def _sample(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear gray values at (N, 2) pixel positions (border replicated)."""
+def _sample_list(gray: np.ndarray, uv: np.ndarray) -> list[float]:
+    """``_sample`` as a list of Python floats."""
     m = uv.astype(np.float32).reshape(1, -1, 2)
     out = cv2.remap(gray, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1).astype(np.float64)
+    return out.reshape(-1).tolist()
 
 
 @dataclass
@@ -341,13 +341,15 @@ def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSet
     one. The pattern must hold exactly one directional rectangle, and that at
     slot position 0 (where the contours put it), with a clear margin.
     """
-    vals = _sample(gray, _project(image_H_sign, _SAMPLES))
-    blacks = np.sort(vals[_S_BLACK])
+    # Plain Python floats from here: a few dozen scalars, where numpy's
+    # per-call overhead would dominate.
+    vals = _sample_list(gray, _project(image_H_sign, _SAMPLES))
+    blacks = sorted(vals[_S_BLACK])
     # A low quantile, not the median: light leaking onto a few black samples
     # must show up as a spread, not raise the black level.
-    black = float(blacks[3])
-    locs = np.sort(vals[_S_LOC])
-    white = float(locs[len(locs) // 2])
+    black = blacks[3]
+    locs = sorted(vals[_S_LOC])
+    white = locs[len(locs) // 2]
     contrast = white - black
     if contrast < settings.min_contrast:
         return _Reading(None, "low_contrast", 0.0, black, white)
@@ -356,34 +358,46 @@ def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSet
     inv = 1.0 / contrast
     worst_black = (blacks[-2] - black) * inv  # the second brightest of 15
     worst_white = (locs[0] - black) * inv
-    dir_len = float((vals[_S_DIR_LEN].min() - black) * inv)
-    around = np.sort(vals[_S_AROUND])
+    dir_len = (min(vals[_S_DIR_LEN]) - black) * inv
+    around = sorted(vals[_S_AROUND])
     worst_around = (around[-2] - black) * inv
     if worst_black > 0.3 or worst_white < 0.6 or dir_len < 0.45 or worst_around > 0.5:
         return _Reading(None, "inconsistent", 0.0, black, white)
-    t = (vals[:_N_SLOT_SAMPLES].reshape(N_BITS + 1, _N_OFFSETS) - black) * inv
-    feats = np.stack([t[:, _N_OFFSETS // 2], t.mean(axis=1)], axis=1)  # (5, 2)
-    cost_black = ((feats - _CLASS_BLACK) ** 2).sum(axis=1)
-    cost_dir = ((feats - _CLASS_DIRECTION) ** 2).sum(axis=1)
-    cost_coded = ((feats - _CLASS_CODED) ** 2).sum(axis=1)
-    best_bit = np.minimum(cost_black, cost_coded)
-    rotation_cost = cost_dir + best_bit.sum() - best_bit
-    order = np.argsort(rotation_cost)
-    direction_margin = float(rotation_cost[order[1]] - rotation_cost[order[0]])
+    t = [[(v - black) * inv for v in vals[k : k + _N_OFFSETS]] for k in _SLOT_STARTS]
+    mid = _N_OFFSETS // 2
+    centre = [row[mid] for row in t]
+    mean = [sum(row) / _N_OFFSETS for row in t]
+    # Squared distances of (centre, mean across) to each class.
+    cb0, cb1 = _CLASS_BLACK
+    cd0, cd1 = _CLASS_DIRECTION
+    cc0, cc1 = _CLASS_CODED
+    cost_black, cost_dir, cost_coded, best_bit = [], [], [], []
+    for c, m in zip(centre, mean, strict=True):
+        cost_black.append((c - cb0) * (c - cb0) + (m - cb1) * (m - cb1))
+        cost_dir.append((c - cd0) * (c - cd0) + (m - cd1) * (m - cd1))
+        cost_coded.append((c - cc0) * (c - cc0) + (m - cc1) * (m - cc1))
+        best_bit.append(min(cost_black[-1], cost_coded[-1]))
+    total = sum(best_bit)
+    rotation_cost = [cost_dir[k] + total - best_bit[k] for k in range(N_BITS + 1)]
+    order = sorted(range(N_BITS + 1), key=rotation_cost.__getitem__)
+    direction_margin = rotation_cost[order[1]] - rotation_cost[order[0]]
     if order[0] != 0 or direction_margin < settings.min_direction_margin:
         return _Reading(None, "ambiguous_direction", direction_margin, black, white)
-    bits = cost_coded[1:] < cost_black[1:]
-    bit_margin = float(np.abs(cost_coded[1:] - cost_black[1:]).min())
+    bits = [cost_coded[k] < cost_black[k] for k in range(1, N_BITS + 1)]
+    bit_margin = min(abs(cost_coded[k] - cost_black[k]) for k in range(1, N_BITS + 1))
     # Each slot must be clearly one thing: a half-white slot (dirt, a cable,
     # heavy blur, a wrong geometry) is refused rather than guessed.
     lo, hi = settings.max_black_frac, settings.min_white_frac
-    centre = t[:, _N_OFFSETS // 2]
-    inner = t[:, 1:-1].min(axis=1)
-    white_ok = (centre >= hi) & (inner >= hi - 0.1) & (feats[:, 1] >= hi)
-    black_ok = (centre <= lo) & (t.max(axis=1) <= lo + 0.1)
-    clear = np.where(bits, white_ok[1:], black_ok[1:])
-    dir_ok = centre[0] >= hi - 0.1 and t[0, 0] <= lo + 0.1 and t[0, -1] <= lo + 0.1
-    if bit_margin < settings.min_bit_margin or not clear.all() or not dir_ok:
+    clear = True
+    for k in range(1, N_BITS + 1):
+        row = t[k]
+        if bits[k - 1]:
+            ok = centre[k] >= hi and min(row[1:-1]) >= hi - 0.1 and mean[k] >= hi
+        else:
+            ok = centre[k] <= lo and max(row) <= lo + 0.1
+        clear = clear and ok
+    dir_ok = centre[0] >= hi - 0.1 and t[0][0] <= lo + 0.1 and t[0][-1] <= lo + 0.1
+    if bit_margin < settings.min_bit_margin or not clear or not dir_ok:
         return _Reading(None, "inconsistent", min(bit_margin, direction_margin), black, white)
     code = "".join("1" if b else "0" for b in bits)
     return _Reading(code, "ok", min(bit_margin, direction_margin), black, white)
@@ -463,11 +477,10 @@ def _fit_parts(
     Returns:
         (image_H_sign, rms residual [px]) or (None, nan).
     """
-    src = _PART_CENTRES[parts]
-    quads = _PART_QUADS[parts]
+    src, quads, flat_quads, prepared = _parts_geometry(parts)
     n = len(parts)
     if n >= 4:
-        h = fit_homography(src, measured_px)
+        h = fit_homography(src, measured_px, prepared)
     elif n == 3:
         h = fit_affine(src, measured_px)
     else:
@@ -476,18 +489,34 @@ def _fit_parts(
         return None, float("nan")
     if n >= 4:
         for _ in range(passes):
-            proj_quads = _project(h, quads.reshape(-1, 2)).reshape(quads.shape)
+            proj_quads = _project(h, flat_quads).reshape(quads.shape)
             offset = polygon_centroids(proj_quads) - _project(h, src)
-            h_new = fit_homography(src, measured_px - offset)
+            h_new = fit_homography(src, measured_px - offset, prepared)
             if h_new is None:
                 break
             h = h_new
     if n <= 4 or not want_residual:
         return h, float("nan")  # an exact fit has no residual to report
-    proj_quads = _project(h, quads.reshape(-1, 2)).reshape(quads.shape)
+    proj_quads = _project(h, flat_quads).reshape(quads.shape)
     resid = polygon_centroids(proj_quads) - measured_px
     rms = float(np.sqrt((resid**2).sum(axis=1).mean()))
     return h, rms
+
+
+_PARTS_CACHE: dict[tuple[int, ...], tuple] = {}
+
+
+def _parts_geometry(parts: list[int]) -> tuple:
+    """(centres (P, 2), quads (P, 4, 2), quads (4P, 2), prepared homography source), cached."""
+    key = tuple(parts)
+    geo = _PARTS_CACHE.get(key)
+    if geo is None:
+        src = _PART_CENTRES[list(key)]
+        quads = _PART_QUADS[list(key)]
+        prepared = prepare_source(src) if len(key) >= 4 else None
+        geo = (src, quads, np.ascontiguousarray(quads.reshape(-1, 2)), prepared)
+        _PARTS_CACHE[key] = geo
+    return geo
 
 
 def _affine_from_two(
@@ -702,7 +731,7 @@ def _decode_region_contour(
     mo = _moments(outer)
     if mo is None:
         return _fail("no_sign")
-    area, outer_c, outer_cov = mo
+    area, ocu, ocv, outer_cov = mo
     holes: list[_Hole] = []
     child = hier[i][2]
     min_hole = max(1.0, 2e-3 * area)
@@ -719,7 +748,7 @@ def _decode_region_contour(
     # A region is disc-like when its area matches the ellipse of its moments
     # and it does not touch the crop's border; then its centroid and second
     # moments describe the disc.
-    det = float(np.linalg.det(outer_cov))
+    det = outer_cov[0] * outer_cov[2] - outer_cov[1] * outer_cov[1]
     x, y, bw, bh = cv2.boundingRect(outer)
     touches = x <= 0 or y <= 0 or x + bw >= w or y + bh >= h
     disc_like = det > 0 and abs(area / (4 * math.pi * math.sqrt(det)) - 1.0) < 0.12 and not touches
@@ -734,13 +763,20 @@ def _decode_region_contour(
             # a square is four corners.
             pts = outer.reshape(-1, 2).astype(float)
             pts = np.concatenate([pts, 0.5 * (pts + np.roll(pts, 1, axis=0))])
-            q = (pts - outer_c) @ wt.T
+            q = (pts - (ocu, ocv)) @ wt.T
             rad = np.sqrt((q * q).sum(axis=1))
             disc_like = float(rad.std()) < 0.07 * float(rad.mean())
-    centre_ref = outer_c if disc_like else crop_centre
+    ru, rv = (ocu, ocv) if disc_like else (float(crop_centre[0]), float(crop_centre[1]))
     rim_contour = outer if disc_like else None
     # Step 5: the hole closest to the centre of the sign's extent.
-    by_dist = sorted(range(len(holes)), key=lambda k: np.hypot(*(holes[k].centroid - centre_ref)))
+    cents = np.array([hl.centroid for hl in holes])  # (N, 2)
+    dist = np.hypot(cents[:, 0] - ru, cents[:, 1] - rv).tolist()
+    by_dist = sorted(range(len(holes)), key=dist.__getitem__)
+    # Cut by the crop's edge along a chord (not just a cable's width); only
+    # asked when a hypothesis puts the rim outside.
+    cut = _LazyFlag(
+        lambda: touches and _border_run(outer, w, h) >= max(4.0, 0.15 * math.sqrt(area))
+    )
     best = _fail("no_location")
     for li in by_dist[: settings.max_location_candidates]:
         loc = holes[li]
@@ -752,7 +788,7 @@ def _decode_region_contour(
             whitener = _whitener(loc.cov, _LOCATION_SIDE**2 / 12.0)
         if whitener is None:
             continue
-        rel = np.array([whitener @ (hl.centroid - loc.centroid) for hl in holes])
+        rel = (cents - loc.centroid) @ whitener.T
         radius = np.hypot(rel[:, 0], rel[:, 1])
         ring = [k for k in range(len(holes)) if k != li and 0.17 < radius[k] < 0.45]
         if not ring:
@@ -768,7 +804,7 @@ def _decode_region_contour(
                 rel,
                 radius,
                 whitener,
-                touches and _border_run(outer, w, h) >= max(4.0, 0.15 * math.sqrt(area)),
+                cut,
                 rim_contour,
                 area if disc_like else None,
                 allowed,
@@ -781,6 +817,20 @@ def _decode_region_contour(
     return best
 
 
+class _LazyFlag:
+    """A boolean computed on first use (and only then)."""
+
+    def __init__(self, fn) -> None:
+        self._fn = fn
+        self._value: bool | None = None
+
+    @property
+    def value(self) -> bool:
+        if self._value is None:
+            self._value = bool(self._fn())
+        return self._value
+
+
 def _try_hypothesis(
     g: np.ndarray,
     holes: list[_Hole],
@@ -789,7 +839,7 @@ def _try_hypothesis(
     rel: np.ndarray,
     radius: np.ndarray,
     whitener: np.ndarray,
-    touches_border: bool,  # along a chord, not just a cable's width
+    touches_border: _LazyFlag,  # along a chord, not just a cable's width
     rim_contour: np.ndarray | None,
     disc_area: float | None,
     allowed: frozenset[str] | None,
@@ -837,7 +887,7 @@ def _try_hypothesis(
         # Only a plausible sign counts as cut: a wild hypothesis can also
         # put its rim outside.
         span = float(np.ptp(rim, axis=0).max())
-        plausible = span < 1.6 * max(w, h) and touches_border
+        plausible = span < 1.6 * max(w, h) and touches_border.value
         return _fail("cut_by_edge" if plausible else "no_location")
     # Every hole the hypothesis leaves unexplained must be small: a sign
     # shows no white inside its disc besides its rectangles.

@@ -22,7 +22,30 @@ def apply_homography(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return cv2.perspectiveTransform(xy, np.asarray(h, dtype=np.float64)).reshape(-1, 2)
 
 
-def fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
+def prepare_source(src: np.ndarray) -> tuple:
+    """The ``src``-only part of ``fit_homography`` (for fits to fixed source points).
+
+    Returns an opaque tuple to pass as ``fit_homography(..., prepared=)``.
+    """
+    src = np.asarray(src, float)
+    n = len(src)
+    cs = src.mean(axis=0)
+    s = src - cs
+    ks = math.sqrt(2.0 * n / max(float((s * s).sum()), 1e-24))
+    s *= ks
+    a = np.zeros((2 * n, 8))
+    a[0::2, 0:2] = s
+    a[0::2, 2] = 1.0
+    a[1::2, 3:5] = s
+    a[1::2, 5] = 1.0
+    ts = np.array([[ks, 0.0, -ks * cs[0]], [0.0, ks, -ks * cs[1]], [0.0, 0.0, 1.0]])
+    flags = cv2.DECOMP_QR if n > 4 else cv2.DECOMP_LU
+    return n, s, a, ts, flags
+
+
+def fit_homography(
+    src: np.ndarray, dst: np.ndarray, prepared: tuple | None = None
+) -> np.ndarray | None:
     """Least-squares homography with ``dst ~ H src`` (linear, h33 = 1).
 
     Both point sets are shifted to their centroids and scaled to unit spread
@@ -31,34 +54,28 @@ def fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
     Args:
         src: (N, 2) points, N >= 4, no three on a line.
         dst: (N, 2) corresponding points.
+        prepared: ``prepare_source(src)`` when fitting the same ``src`` often.
 
     Returns:
         (3, 3) homography, or None when the points are degenerate.
     """
-    src = np.asarray(src, float)
+    if prepared is None:
+        if len(src) < 4:
+            return None
+        prepared = prepare_source(src)
+    n, s, a, ts, flags = prepared
     dst = np.asarray(dst, float)
-    n = len(src)
-    if n < 4:
-        return None
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    s = src - cs
+    cd = dst.mean(axis=0)
     d = dst - cd
-    ks = math.sqrt(2.0 * n / max(float((s * s).sum()), 1e-24))
     kd = math.sqrt(2.0 * n / max(float((d * d).sum()), 1e-24))
-    s *= ks
     d *= kd
-    a = np.zeros((2 * n, 8))
-    a[0::2, 0:2] = s
-    a[0::2, 2] = 1.0
+    a = a.copy()
     a[0::2, 6:8] = -d[:, :1] * s
-    a[1::2, 3:5] = s
-    a[1::2, 5] = 1.0
     a[1::2, 6:8] = -d[:, 1:2] * s
-    ok, x = cv2.solve(a, d.reshape(-1, 1), flags=cv2.DECOMP_QR if n > 4 else cv2.DECOMP_LU)
+    ok, x = cv2.solve(a, d.reshape(-1, 1), flags=flags)
     if not ok:
         return None
     hn = np.append(x.ravel(), 1.0).reshape(3, 3)
-    ts = np.array([[ks, 0.0, -ks * cs[0]], [0.0, ks, -ks * cs[1]], [0.0, 0.0, 1.0]])
     td_inv = np.array([[1.0 / kd, 0.0, cd[0]], [0.0, 1.0 / kd, cd[1]], [0.0, 0.0, 1.0]])
     h = td_inv @ hn @ ts
     if not np.all(np.isfinite(h)) or abs(h[2, 2]) < 1e-12:
