@@ -138,7 +138,6 @@ _RIM = 0.46 * np.stack(
 )
 # Expected (centre, mean across) of a slot, as fractions black -> white.
 _UNIT_STEPS = np.array([[0.0, 0.0], [0.01, 0.0], [0.0, 0.01]])
-_ARANGE = np.arange(4096, dtype=np.float32)
 
 
 def _grow_directions() -> np.ndarray:
@@ -438,24 +437,31 @@ def _subpixel_centroids(
     if not valid.any():
         return out, valid
     # One window over all parts, one label per part (the grown rectangles do
-    # not overlap: the growth stops short of halfway to the neighbours).
-    x0, y0 = (int(v) for v in lo[valid].min(axis=0))
-    x1, y1 = (int(v) for v in hi[valid].max(axis=0))
+    # not overlap in the sign plane; a pixel on two rasterised borders goes
+    # to the later part). The sums per part run over the part's own box, in
+    # double precision (cv2.moments).
+    idx = np.flatnonzero(valid).tolist()
+    lo_i = lo[idx].astype(np.int64)
+    hi_i = hi[idx].astype(np.int64)
+    x0, y0 = lo_i.min(axis=0).tolist()
+    x1, y1 = hi_i.max(axis=0).tolist()
     labels = np.zeros((y1 - y0, x1 - x0), np.uint8)
     pts = np.round((polys - (x0, y0)) * 16).astype(np.int32)
-    for i in np.flatnonzero(valid):
-        cv2.fillConvexPoly(labels, pts[i], int(i) + 1, lineType=cv2.LINE_8, shift=4)
+    for i in idx:
+        cv2.fillConvexPoly(labels, pts[i], i + 1, lineType=cv2.LINE_8, shift=4)
     wt = gray[y0:y1, x0:x1] - np.float32(black)
     wt *= np.float32(1.0 / max(white - black, 1e-6))
     np.clip(wt, 0.0, 1.0, out=wt)
-    lab = labels.ravel()
-    s0 = np.bincount(lab, weights=wt.ravel(), minlength=n + 1)[1:]
-    su = np.bincount(lab, weights=(wt * _ARANGE[: x1 - x0]).ravel(), minlength=n + 1)[1:]
-    sv = np.bincount(lab, weights=(wt * _ARANGE[: y1 - y0, None]).ravel(), minlength=n + 1)[1:]
-    valid &= s0 > 0
-    safe = np.where(valid, s0, 1.0)
-    out[:, 0] = x0 + su / safe
-    out[:, 1] = y0 + sv / safe
+    for i, (a0, b0), (a1, b1) in zip(
+        idx, (lo_i - (x0, y0)).tolist(), (hi_i - (x0, y0)).tolist(), strict=True
+    ):
+        win = wt[b0:b1, a0:a1]
+        m = cv2.moments(np.where(labels[b0:b1, a0:a1] == i + 1, win, np.float32(0.0)))
+        if m["m00"] > 0:
+            out[i, 0] = x0 + a0 + m["m10"] / m["m00"]
+            out[i, 1] = y0 + b0 + m["m01"] / m["m00"]
+        else:
+            valid[i] = False
     return out, valid
 
 
