@@ -568,11 +568,12 @@ def _border_run(contour: np.ndarray, w: int, h: int) -> float:
 
 
 def _inside(points: np.ndarray, w: int, h: int, margin: float) -> bool:
-    return bool(
-        (points[:, 0] >= -0.5 + margin).all()
-        and (points[:, 0] <= w - 0.5 - margin).all()
-        and (points[:, 1] >= -0.5 + margin).all()
-        and (points[:, 1] <= h - 0.5 - margin).all()
+    (u0, v0), (u1, v1) = points.min(axis=0).tolist(), points.max(axis=0).tolist()
+    return (
+        u0 >= -0.5 + margin
+        and u1 <= w - 0.5 - margin
+        and v0 >= -0.5 + margin
+        and v1 <= h - 0.5 - margin
     )
 
 
@@ -688,7 +689,7 @@ def _decode_at(
     contours, hierarchy = cv2.findContours(dark, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is None:
         return _fail("no_sign")
-    hier = hierarchy[0]
+    hier = hierarchy[0].tolist()
     regions = []
     for i in range(len(contours)):
         if hier[i][3] >= 0 or hier[i][2] < 0:
@@ -726,7 +727,7 @@ _REASON_RANK = {
 def _decode_region_contour(
     g: np.ndarray,
     contours,
-    hier: np.ndarray,
+    hier: list[list[int]],
     i: int,
     crop_centre: np.ndarray,
     allowed: frozenset[str] | None,
@@ -768,7 +769,8 @@ def _decode_region_contour(
             # Vertices and edge midpoints: the contour is chain-compressed, so
             # a square is four corners.
             pts = outer.reshape(-1, 2).astype(float)
-            pts = np.concatenate([pts, 0.5 * (pts + np.roll(pts, 1, axis=0))])
+            prev = np.concatenate([pts[-1:], pts[:-1]])
+            pts = np.concatenate([pts, 0.5 * (pts + prev)])
             q = (pts - (ocu, ocv)) @ wt.T
             rad = np.sqrt((q * q).sum(axis=1))
             disc_like = float(rad.std()) < 0.07 * float(rad.mean())
@@ -795,7 +797,7 @@ def _decode_region_contour(
         if whitener is None:
             continue
         rel = (cents - loc.centroid) @ whitener.T
-        radius = np.hypot(rel[:, 0], rel[:, 1])
+        radius = np.hypot(rel[:, 0], rel[:, 1]).tolist()
         ring = [k for k in range(len(holes)) if k != li and 0.17 < radius[k] < 0.45]
         if not ring:
             continue
@@ -843,7 +845,7 @@ def _try_hypothesis(
     li: int,
     di: int,
     rel: np.ndarray,
-    radius: np.ndarray,
+    radius: list[float],
     whitener: np.ndarray,
     touches_border: _LazyFlag,  # along a chord, not just a cable's width
     rim_contour: np.ndarray | None,
@@ -854,7 +856,7 @@ def _try_hypothesis(
     h, w = g.shape
     # Step 7: clockwise angle of every ring hole from centre -> directional.
     ang = np.arctan2(rel[:, 1], rel[:, 0])
-    cw = np.degrees(ang[di] - ang) % 360.0  # sign frame y up: clockwise = decreasing
+    cw = (np.degrees(ang[di] - ang) % 360.0).tolist()  # sign frame y up: clockwise = decreasing
     slots: dict[int, int] = {}
     for k in range(len(holes)):
         if k in (li, di) or not 0.17 < radius[k] < 0.45:
@@ -869,7 +871,11 @@ def _try_hypothesis(
     measured = np.array(
         [holes[li].centroid, holes[di].centroid] + [holes[slots[s]].centroid for s in sorted(slots)]
     )
-    fallback = _affine_from_two(holes[li].centroid, holes[di].centroid, whitener)
+    fallback = (
+        _affine_from_two(holes[li].centroid, holes[di].centroid, whitener)
+        if len(parts) < 3
+        else None
+    )
     image_H_sign, _ = _fit_parts(parts, measured, fallback, passes=0, want_residual=False)
     if image_H_sign is None:
         return _fail("no_location")
@@ -919,7 +925,7 @@ def _try_hypothesis(
     cents, valid = _subpixel_centroids(g, image_H_sign, parts, reading.black, reading.white, pad)
     use = [p for p, v in zip(parts, valid, strict=True) if v]
     if len(use) >= 2:
-        fallback = _refit_fallback(image_H_sign, cents, valid)
+        fallback = _refit_fallback(image_H_sign, cents, valid) if len(use) < 3 else None
         passes = 1 if settings.perspective_correction else 0
         h_ref, rms = _fit_parts(use, cents[valid], fallback, passes=passes)
         if h_ref is None:
@@ -962,7 +968,7 @@ def _try_hypothesis(
     scale_px = ellipse[1][1]
     sigma = _sigma_px(rms, len(use), scale_px)
     quality = float(
-        np.clip(reading.margin / 0.5, 0.0, 1.0)
+        min(max(reading.margin / 0.5, 0.0), 1.0)
         * math.exp(-(rms if math.isfinite(rms) else 0.0) / 0.5)
     )
     return DecodeResult(

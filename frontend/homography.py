@@ -123,6 +123,11 @@ def ellipse_from_conic(c: np.ndarray) -> Ellipse:
     """
     a, b, d = float(c[0, 0]), float(c[0, 1]), float(c[1, 1])
     e, f, g = float(c[0, 2]), float(c[1, 2]), float(c[2, 2])
+    return _ellipse_from_coeffs(a, b, d, e, f, g)
+
+
+def _ellipse_from_coeffs(a: float, b: float, d: float, e: float, f: float, g: float) -> Ellipse:
+    """``ellipse_from_conic`` of [[a, b, e], [b, d, f], [e, f, g]]."""
     det = a * d - b * b
     if det <= 0:
         raise ValueError("conic is not an ellipse")
@@ -142,6 +147,16 @@ def ellipse_from_conic(c: np.ndarray) -> Ellipse:
 def disc_ellipse(image_H_sign: np.ndarray, diameter: float) -> Ellipse:
     """Exact image of the rim of a disc of ``diameter`` centred at the sign origin."""
     r = diameter / 2.0
-    circle = np.diag([1.0, 1.0, -r * r])
     _, hinv = cv2.invert(np.asarray(image_H_sign, dtype=np.float64))
-    return ellipse_from_conic(hinv.T @ circle @ hinv)
+    # hinv^T diag(1, 1, -r^2) hinv, in plain floats (a 3x3 product).
+    (p0, p1, p2), (q0, q1, q2), (s0, s1, s2) = hinv.tolist()
+    w = -r * r
+    t0, t1, t2 = s0 * w, s1 * w, s2 * w
+    return _ellipse_from_coeffs(
+        p0 * p0 + q0 * q0 + t0 * s0,
+        p0 * p1 + q0 * q1 + t0 * s1,
+        p1 * p1 + q1 * q1 + t1 * s1,
+        p0 * p2 + q0 * q2 + t0 * s2,
+        p1 * p2 + q1 * q2 + t1 * s2,
+        p2 * p2 + q2 * q2 + t2 * s2,
+    )
