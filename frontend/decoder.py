@@ -425,26 +425,32 @@ def _subpixel_centroids(
     h, w = gray.shape
     n = len(parts)
     out = np.zeros((n, 2))
-    c0, cx, cy = _project(image_H_sign, _UNIT_STEPS)
-    ex, ey = cx - c0, cy - c0
-    scale = math.sqrt(abs(float(ex[0] * ey[1] - ex[1] * ey[0]))) / 0.01  # px per diameter
+    (c0u, c0v), (cxu, cxv), (cyu, cyv) = _project(image_H_sign, _UNIT_STEPS).tolist()
+    exu, exv, eyu, eyv = cxu - c0u, cxv - c0v, cyu - c0u, cyv - c0v
+    scale = math.sqrt(abs(exu * eyv - exv * eyu)) / 0.01  # px per diameter
     grow = min(pad_px / max(scale, 1e-9), 0.035)
-    big = _PART_QUADS[parts] + grow * _PART_GROW[parts]
-    polys = _project(image_H_sign, big.reshape(-1, 2)).reshape(n, 4, 2)
-    lo = np.floor(polys.min(axis=1))
-    hi = np.ceil(polys.max(axis=1)) + 1
-    valid = (lo[:, 0] >= 0) & (lo[:, 1] >= 0) & (hi[:, 0] <= w) & (hi[:, 1] <= h)
-    if not valid.any():
+    _, _, flat_quads, _, flat_grow = _parts_geometry(parts)
+    polys = _project(image_H_sign, flat_quads + grow * flat_grow).reshape(n, 4, 2)
+    lo_l = np.floor(polys.min(axis=1)).tolist()
+    hi_l = (np.ceil(polys.max(axis=1)) + 1).tolist()
+    # (NaN compares false: invalid.)
+    valid_l = [
+        lo[0] >= 0 and lo[1] >= 0 and hi[0] <= w and hi[1] <= h
+        for lo, hi in zip(lo_l, hi_l, strict=True)
+    ]
+    idx = [i for i in range(n) if valid_l[i]]
+    valid = np.array(valid_l, dtype=bool)
+    if not idx:
         return out, valid
     # One window over all parts, one label per part (the grown rectangles do
     # not overlap in the sign plane; a pixel on two rasterised borders goes
     # to the later part). The sums per part run over the part's own box, in
     # double precision (cv2.moments).
-    idx = np.flatnonzero(valid).tolist()
-    lo_i = lo[idx].astype(np.int64)
-    hi_i = hi[idx].astype(np.int64)
-    x0, y0 = lo_i.min(axis=0).tolist()
-    x1, y1 = hi_i.max(axis=0).tolist()
+    boxes = [(int(lo_l[i][0]), int(lo_l[i][1]), int(hi_l[i][0]), int(hi_l[i][1])) for i in idx]
+    x0 = min(bx[0] for bx in boxes)
+    y0 = min(bx[1] for bx in boxes)
+    x1 = max(bx[2] for bx in boxes)
+    y1 = max(bx[3] for bx in boxes)
     labels = np.zeros((y1 - y0, x1 - x0), np.uint8)
     pts = np.round((polys - (x0, y0)) * 16).astype(np.int32)
     for i in idx:
@@ -452,9 +458,8 @@ def _subpixel_centroids(
     wt = gray[y0:y1, x0:x1] - np.float32(black)
     wt *= np.float32(1.0 / max(white - black, 1e-6))
     np.clip(wt, 0.0, 1.0, out=wt)
-    for i, (a0, b0), (a1, b1) in zip(
-        idx, (lo_i - (x0, y0)).tolist(), (hi_i - (x0, y0)).tolist(), strict=True
-    ):
+    for i, (a0, b0, a1, b1) in zip(idx, boxes, strict=True):
+        a0, b0, a1, b1 = a0 - x0, b0 - y0, a1 - x0, b1 - y0
         win = wt[b0:b1, a0:a1]
         m = cv2.moments(np.where(labels[b0:b1, a0:a1] == i + 1, win, np.float32(0.0)))
         if m["m00"] > 0:
@@ -483,7 +488,7 @@ def _fit_parts(
     Returns:
         (image_H_sign, rms residual [px]) or (None, nan).
     """
-    src, quads, flat_quads, prepared = _parts_geometry(parts)
+    src, quads, flat_quads, prepared, _ = _parts_geometry(parts)
     n = len(parts)
     if n >= 4:
         h = fit_homography(src, measured_px, prepared)
@@ -513,14 +518,16 @@ _PARTS_CACHE: dict[tuple[int, ...], tuple] = {}
 
 
 def _parts_geometry(parts: list[int]) -> tuple:
-    """(centres (P, 2), quads (P, 4, 2), quads (4P, 2), prepared homography source), cached."""
+    """Cached per part list: centres (P, 2), quads (P, 4, 2), quads (4P, 2),
+    the prepared homography source and the corners' growth directions (4P, 2)."""
     key = tuple(parts)
     geo = _PARTS_CACHE.get(key)
     if geo is None:
         src = _PART_CENTRES[list(key)]
         quads = _PART_QUADS[list(key)]
         prepared = prepare_source(src) if len(key) >= 4 else None
-        geo = (src, quads, np.ascontiguousarray(quads.reshape(-1, 2)), prepared)
+        grow = _PART_GROW[list(key)].reshape(-1, 2)
+        geo = (src, quads, np.ascontiguousarray(quads.reshape(-1, 2)), prepared, grow)
         _PARTS_CACHE[key] = geo
     return geo
 

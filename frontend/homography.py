@@ -65,7 +65,7 @@ def fit_homography(
         prepared = prepare_source(src)
     n, s, a, ts, flags = prepared
     dst = np.asarray(dst, float)
-    cd = dst.mean(axis=0)
+    cd = np.add.reduce(dst, axis=0) / n  # dst.mean(axis=0) without its Python wrapper
     d = dst - cd
     kd = math.sqrt(2.0 * n / max(float((d * d).sum()), 1e-24))
     d *= kd
