@@ -59,28 +59,39 @@ def main(argv=None) -> int:
         f"load average {load:.1f} on {os.cpu_count()} cores (synthesis {t_syn:.1f} s)"
     )
     out: dict = {"frames": args.frames, "motion": args.motion, "load_average": load}
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     pnp = run_per_frame(frames, sign_map, camera, "pnp")
-    t_pnp = time.perf_counter() - t
+    t_pnp, c_pnp = time.perf_counter() - t, time.process_time() - c
     print(
-        f"per-frame PnP (initial values): {t_pnp:.2f} s ({1e3 * t_pnp / args.frames:.2f} ms/frame)"
+        f"per-frame PnP (initial values): {t_pnp:.2f} s, CPU {c_pnp:.2f} s "
+        f"({1e3 * t_pnp / args.frames:.2f} ms/frame, CPU {1e3 * c_pnp / args.frames:.2f})"
     )
     init = [p.world_T_cam for p in pnp]
     settings = SmootherSettings(motion=args.motion, compute_sigmas=False)
     default = default_pose(sign_map)
+    c = time.process_time()
     r = smooth_batch(meas, gt.stamps_s, init, camera, settings, default)
+    c_batch = time.process_time() - c
     err = np.abs(r.world_T_cam[:, :3, 3] - gt.world_t_cam).mean(axis=0)
     out.update(
         pnp_ms_per_frame=1e3 * t_pnp / args.frames,
+        pnp_cpu_ms_per_frame=1e3 * c_pnp / args.frames,
         batch_s=r.seconds,
+        batch_cpu_s=c_batch,
+        batch_with_pnp_s=r.seconds + t_pnp,
         batch_build_s=r.extra["build_s"],
         batch_optimize_s=r.extra["optimize_s"],
         batch_iterations=r.iterations,
         batch_mae_xyz=err.tolist(),
     )
     print(
-        f"batch LM: {r.seconds:.2f} s (build {r.extra['build_s']:.2f} s, optimise "
-        f"{r.extra['optimize_s']:.2f} s, {r.iterations} iterations); MAE xyz {np.round(err, 4)}"
+        f"batch LM: {r.seconds:.2f} s, CPU {c_batch:.2f} s (build {r.extra['build_s']:.2f} s, "
+        f"optimise {r.extra['optimize_s']:.2f} s, {r.iterations} iterations); "
+        f"MAE xyz {np.round(err, 4)}"
+    )
+    print(
+        f"batch LM + per-frame PnP initialisation (what a user waits for): "
+        f"{r.seconds + t_pnp:.2f} s, CPU {c_batch + c_pnp:.2f} s"
     )
     if args.sigmas:
         graph_s = SmootherSettings(
@@ -99,12 +110,20 @@ def main(argv=None) -> int:
         sub = collect_measurements(frames[:n], sign_map, camera)
         ri = smooth_isam2(sub, gt.stamps_s[:n], init[:n], camera, settings, default)
         ms = ri.per_frame_ms
+        cpu = ri.extra.get("per_frame_cpu_ms")
         q = np.percentile(ms, [50, 90, 99])
         last = np.median(ms[-min(500, n) :])
         print(
             f"iSAM2 over {n} frames: median {q[0]:.2f} ms/frame (p90 {q[1]:.2f}, p99 {q[2]:.2f}, "
             f"median of the last 500 {last:.2f}); total {ri.seconds:.1f} s incl. final convergence"
         )
+        if cpu is not None:
+            qc = np.percentile(cpu, [50, 90])
+            print(
+                f"iSAM2 CPU: median {qc[0]:.2f} ms/frame (p90 {qc[1]:.2f}, "
+                f"median of the last 500 {np.median(cpu[-min(500, n) :]):.2f})"
+            )
+            out["isam2_cpu_median_ms"] = float(qc[0])
         d = (
             np.abs(ri.world_T_cam[:, :3, 3] - r.world_T_cam[:n, :3, 3]).max()
             if n == args.frames
