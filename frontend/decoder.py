@@ -780,7 +780,11 @@ def _decode_region_contour(
             pts = np.concatenate([pts, 0.5 * (pts + prev)])
             q = (pts - (ocu, ocv)) @ wt.T
             rad = np.sqrt((q * q).sum(axis=1))
-            disc_like = float(rad.std()) < 0.07 * float(rad.mean())
+            # rad.std() and rad.mean() without numpy's Python wrappers.
+            mean = np.add.reduce(rad) / len(rad)
+            dev = rad - mean
+            std = math.sqrt(np.add.reduce(dev * dev) / len(rad))
+            disc_like = std < 0.07 * float(mean)
     ru, rv = (ocu, ocv) if disc_like else (float(crop_centre[0]), float(crop_centre[1]))
     rim_contour = outer if disc_like else None
     # Step 5: the hole closest to the centre of the sign's extent.
@@ -931,17 +935,18 @@ def _try_hypothesis(
     pad = 1.5
     cents, valid = _subpixel_centroids(g, image_H_sign, parts, reading.black, reading.white, pad)
     use = [p for p, v in zip(parts, valid, strict=True) if v]
+    cents_used = cents[valid]
     if len(use) >= 2:
         fallback = _refit_fallback(image_H_sign, cents, valid) if len(use) < 3 else None
         passes = 1 if settings.perspective_correction else 0
-        h_ref, rms = _fit_parts(use, cents[valid], fallback, passes=passes)
+        h_ref, rms = _fit_parts(use, cents_used, fallback, passes=passes)
         if h_ref is None:
             return _fail("inconsistent", quality=reading.margin)
         # The refined geometry must tell the same story: the sign centre stays
         # put (within a tenth of the diameter) and the slots read the same.
-        before = _project(image_H_sign, _PART_CENTRES[:2])
-        after = _project(h_ref, _PART_CENTRES[:2])
-        moved = float(np.abs(after - before).max())
+        before = _project(image_H_sign, _PART_CENTRES[:2]).ravel().tolist()
+        after = _project(h_ref, _PART_CENTRES[:2]).ravel().tolist()
+        moved = max(abs(a - b) for a, b in zip(after, before, strict=True))
         # The refined map passes through the measured centroids, so a wild
         # one can keep them and still be wrong elsewhere: read again.
         if moved > 0.1 * major or _read_slots(g, h_ref, settings).code != code:
@@ -959,16 +964,16 @@ def _try_hypothesis(
     if 2 <= len(use) < 4 and rim_contour is not None and settings.perspective_correction:
         # Too few parts for a homography: take the perspective from the disc's
         # rim instead and remove each part's predicted centroid offset.
-        h_rim = _homography_from_rim(rim_contour, cents[valid][0], cents[valid][1])
+        h_rim = _homography_from_rim(rim_contour, cents_used[0], cents_used[1])
         if h_rim is not None:
             quads = _PART_QUADS[use]
             proj = _project(h_rim, quads.reshape(-1, 2)).reshape(quads.shape)
             offset = polygon_centroids(proj) - _project(h_rim, _PART_CENTRES[use])
-            fixed = dict(zip(use, cents[valid] - offset, strict=True))
+            fixed = dict(zip(use, cents_used - offset, strict=True))
             uv = np.array([fixed.get(p, q) for p, q in zip(kp_idx, uv, strict=True)])
             shift = fixed[0] - _project(h_rim, _PART_CENTRES[:1])[0]
             image_H_sign = np.array([[1, 0, shift[0]], [0, 1, shift[1]], [0, 0, 1.0]]) @ h_rim
-    keypoints = {n: (float(p[0]), float(p[1])) for n, p in zip(kp_names, uv, strict=True)}
+    keypoints = {n: (p[0], p[1]) for n, p in zip(kp_names, np.asarray(uv).tolist(), strict=True)}
     ellipse = _safe_disc_ellipse(image_H_sign)
     if ellipse is None:
         return _fail("inconsistent")

@@ -101,13 +101,20 @@ def fit_affine(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
 def polygon_centroids(polys: np.ndarray) -> np.ndarray:
     """Area centroids of (K, M, 2) polygons; returns (K, 2)."""
     x, y = polys[..., 0], polys[..., 1]
-    nxt = np.arange(1, x.shape[1] + 1) % x.shape[1]
+    m = x.shape[1]
+    nxt = _NEXT.get(m)
+    if nxt is None:
+        nxt = _NEXT[m] = np.arange(1, m + 1) % m
     xn, yn = x[:, nxt], y[:, nxt]
     cross = x * yn - xn * y
-    area = cross.sum(axis=1) / 2.0
-    cx = ((x + xn) * cross).sum(axis=1) / (6.0 * area)
-    cy = ((y + yn) * cross).sum(axis=1) / (6.0 * area)
-    return np.stack([cx, cy], axis=1)
+    area6 = 6.0 * (cross.sum(axis=1) / 2.0)
+    out = np.empty((len(x), 2))
+    out[:, 0] = ((x + xn) * cross).sum(axis=1) / area6
+    out[:, 1] = ((y + yn) * cross).sum(axis=1) / area6
+    return out
+
+
+_NEXT: dict[int, np.ndarray] = {}  # vertex index -> next vertex index, per vertex count
 
 
 def ellipse_from_conic(c: np.ndarray) -> Ellipse:
