@@ -308,8 +308,15 @@ def main(argv: list[str] | None = None) -> int:
     cpu = np.array([r["cpu_s"] for r in rows]) * 1e3
     print(
         f"\nDecoding time per crop: median {np.median(wall):.3f} ms wall "
-        f"({np.median(cpu):.3f} ms CPU), 90th percentile {np.percentile(wall, 90):.3f} ms"
+        f"({np.median(cpu):.3f} ms CPU), 90th percentile {np.percentile(wall, 90):.3f} ms, "
+        f"mean {wall.mean():.3f} ms wall ({cpu.mean():.3f} ms CPU)"
     )
+    ok = np.array([r["res"].code is not None for r in rows])
+    if ok.any() and (~ok).any():
+        print(
+            f"  median CPU: decoded {np.median(cpu[ok]):.3f} ms, "
+            f"not decoded {np.median(cpu[~ok]):.3f} ms (every fallback tried)"
+        )
 
     if args.json is not None:
         out = {
@@ -333,6 +340,8 @@ def main(argv: list[str] | None = None) -> int:
             "bias_by_view_angle": bias_table,
             "median_ms_wall": float(np.median(wall)),
             "median_ms_cpu": float(np.median(cpu)),
+            "mean_ms_wall": float(wall.mean()),
+            "mean_ms_cpu": float(cpu.mean()),
         }
         with atomic_write(args.json) as f:
             json.dump(out, f, indent=2)
