@@ -866,8 +866,9 @@ def _try_hypothesis(
 ) -> DecodeResult:
     h, w = g.shape
     # Step 7: clockwise angle of every ring hole from centre -> directional.
-    ang = np.arctan2(rel[:, 1], rel[:, 0])
-    cw = (np.degrees(ang[di] - ang) % 360.0).tolist()  # sign frame y up: clockwise = decreasing
+    ang = [math.atan2(v, u) for u, v in rel.tolist()]
+    # Sign frame y up: clockwise = decreasing angle.
+    cw = [math.degrees(ang[di] - a) % 360.0 for a in ang]
     slots: dict[int, int] = {}
     for k in range(len(holes)):
         if k in (li, di) or not 0.17 < radius[k] < 0.45:

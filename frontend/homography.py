@@ -67,7 +67,7 @@ def fit_homography(
     dst = np.asarray(dst, float)
     cd = np.add.reduce(dst, axis=0) / n  # dst.mean(axis=0) without its Python wrapper
     d = dst - cd
-    kd = math.sqrt(2.0 * n / max(float((d * d).sum()), 1e-24))
+    kd = math.sqrt(2.0 * n / max(float(np.add.reduce((d * d).ravel())), 1e-24))
     d *= kd
     a = a.copy()
     a[0::2, 6:8] = -d[:, :1] * s
@@ -75,12 +75,17 @@ def fit_homography(
     ok, x = cv2.solve(a, d.reshape(-1, 1), flags=flags)
     if not ok:
         return None
-    hn = np.append(x.ravel(), 1.0).reshape(3, 3)
-    td_inv = np.array([[1.0 / kd, 0.0, cd[0]], [0.0, 1.0 / kd, cd[1]], [0.0, 0.0, 1.0]])
+    hn = np.concatenate((x.ravel(), _ONE)).reshape(3, 3)
+    cu, cv = cd.tolist()
+    td_inv = np.array([[1.0 / kd, 0.0, cu], [0.0, 1.0 / kd, cv], [0.0, 0.0, 1.0]])
     h = td_inv @ hn @ ts
-    if not np.all(np.isfinite(h)) or abs(h[2, 2]) < 1e-12:
+    h22 = float(h[2, 2])
+    if not np.isfinite(h).all() or abs(h22) < 1e-12:
         return None
-    return h / h[2, 2]
+    return h / h22
+
+
+_ONE = np.ones(1)
 
 
 def fit_affine(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
