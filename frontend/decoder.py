@@ -431,8 +431,9 @@ def _subpixel_centroids(
     grow = min(pad_px / max(scale, 1e-9), 0.035)
     _, _, flat_quads, _, flat_grow = _parts_geometry(parts)
     polys = _project(image_H_sign, flat_quads + grow * flat_grow).reshape(n, 4, 2)
-    lo_l = np.floor(polys.min(axis=1)).tolist()
-    hi_l = (np.ceil(polys.max(axis=1)) + 1).tolist()
+    # (ufunc reductions: ndarray.min/max without their Python wrappers)
+    lo_l = np.floor(np.minimum.reduce(polys, axis=1)).tolist()
+    hi_l = (np.ceil(np.maximum.reduce(polys, axis=1)) + 1).tolist()
     # (NaN compares false: invalid.)
     valid_l = [
         lo[0] >= 0 and lo[1] >= 0 and hi[0] <= w and hi[1] <= h
@@ -452,7 +453,7 @@ def _subpixel_centroids(
     x1 = max(bx[2] for bx in boxes)
     y1 = max(bx[3] for bx in boxes)
     labels = np.zeros((y1 - y0, x1 - x0), np.uint8)
-    pts = np.round((polys - (x0, y0)) * 16).astype(np.int32)
+    pts = np.rint((polys - (x0, y0)) * 16).astype(np.int32)  # np.round, as a ufunc
     for i in idx:
         cv2.fillConvexPoly(labels, pts[i], i + 1, lineType=cv2.LINE_8, shift=4)
     wt = gray[y0:y1, x0:x1] - np.float32(black)
@@ -510,7 +511,7 @@ def _fit_parts(
         return h, float("nan")  # an exact fit has no residual to report
     proj_quads = _project(h, flat_quads).reshape(quads.shape)
     resid = polygon_centroids(proj_quads) - measured_px
-    rms = float(np.sqrt((resid**2).sum(axis=1).mean()))
+    rms = math.sqrt(float(np.add.reduce(np.add.reduce(resid * resid, axis=1))) / len(resid))
     return h, rms
 
 
@@ -575,7 +576,8 @@ def _border_run(contour: np.ndarray, w: int, h: int) -> float:
 
 
 def _inside(points: np.ndarray, w: int, h: int, margin: float) -> bool:
-    (u0, v0), (u1, v1) = points.min(axis=0).tolist(), points.max(axis=0).tolist()
+    (u0, v0) = np.minimum.reduce(points, axis=0).tolist()
+    (u1, v1) = np.maximum.reduce(points, axis=0).tolist()
     return (
         u0 >= -0.5 + margin
         and u1 <= w - 0.5 - margin
@@ -779,7 +781,7 @@ def _decode_region_contour(
             prev = np.concatenate([pts[-1:], pts[:-1]])
             pts = np.concatenate([pts, 0.5 * (pts + prev)])
             q = (pts - (ocu, ocv)) @ wt.T
-            rad = np.sqrt((q * q).sum(axis=1))
+            rad = np.sqrt(np.add.reduce(q * q, axis=1))
             # rad.std() and rad.mean() without numpy's Python wrappers.
             mean = np.add.reduce(rad) / len(rad)
             dev = rad - mean

@@ -112,10 +112,10 @@ def polygon_centroids(polys: np.ndarray) -> np.ndarray:
         nxt = _NEXT[m] = np.arange(1, m + 1) % m
     xn, yn = x[:, nxt], y[:, nxt]
     cross = x * yn - xn * y
-    area6 = 6.0 * (cross.sum(axis=1) / 2.0)
+    area6 = 6.0 * (np.add.reduce(cross, axis=1) / 2.0)
     out = np.empty((len(x), 2))
-    out[:, 0] = ((x + xn) * cross).sum(axis=1) / area6
-    out[:, 1] = ((y + yn) * cross).sum(axis=1) / area6
+    out[:, 0] = np.add.reduce((x + xn) * cross, axis=1) / area6
+    out[:, 1] = np.add.reduce((y + yn) * cross, axis=1) / area6
     return out
 
 
