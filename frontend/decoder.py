@@ -59,6 +59,7 @@ import numpy as np
 
 from frontend.homography import (
     Ellipse,
+    affine_design,
     disc_ellipse,
     fit_affine,
     fit_homography,
@@ -494,7 +495,7 @@ def _fit_parts(
     if n >= 4:
         h = fit_homography(src, measured_px, prepared)
     elif n == 3:
-        h = fit_affine(src, measured_px)
+        h = fit_affine(src, measured_px, prepared)
     else:
         h = fallback
     if h is None:
@@ -520,13 +521,14 @@ _PARTS_CACHE: dict[tuple[int, ...], tuple] = {}
 
 def _parts_geometry(parts: list[int]) -> tuple:
     """Cached per part list: centres (P, 2), quads (P, 4, 2), quads (4P, 2),
-    the prepared homography source and the corners' growth directions (4P, 2)."""
+    the prepared homography source (affine design matrix for fewer than four
+    parts) and the corners' growth directions (4P, 2)."""
     key = tuple(parts)
     geo = _PARTS_CACHE.get(key)
     if geo is None:
         src = _PART_CENTRES[list(key)]
         quads = _PART_QUADS[list(key)]
-        prepared = prepare_source(src) if len(key) >= 4 else None
+        prepared = prepare_source(src) if len(key) >= 4 else affine_design(src)
         grow = _PART_GROW[list(key)].reshape(-1, 2)
         geo = (src, quads, np.ascontiguousarray(quads.reshape(-1, 2)), prepared, grow)
         _PARTS_CACHE[key] = geo

@@ -88,13 +88,23 @@ def fit_homography(
 _ONE = np.ones(1)
 
 
-def fit_affine(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
-    """Least-squares affine map (as a (3, 3) homography) with ``dst ~ A src``; N >= 3."""
+def affine_design(src: np.ndarray) -> np.ndarray:
+    """The (N, 3) design matrix [src, 1] of ``fit_affine`` (for fits to fixed source points)."""
     src = np.asarray(src, float)
+    return np.column_stack([src, np.ones(len(src))])
+
+
+def fit_affine(
+    src: np.ndarray, dst: np.ndarray, design: np.ndarray | None = None
+) -> np.ndarray | None:
+    """Least-squares affine map (as a (3, 3) homography) with ``dst ~ A src``; N >= 3.
+
+    ``design``: ``affine_design(src)`` when fitting the same ``src`` often.
+    """
     dst = np.asarray(dst, float)
     if len(src) < 3:
         return None
-    a = np.column_stack([src, np.ones(len(src))])
+    a = affine_design(src) if design is None else design
     ok, sol = cv2.solve(a, dst, flags=cv2.DECOMP_QR if len(src) > 3 else cv2.DECOMP_LU)
     if not ok:
         return None
