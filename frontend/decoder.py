@@ -66,7 +66,7 @@ from frontend.homography import (
     polygon_centroids,
     prepare_source,
 )
-from frontend.sign import N_BITS, sign_shape, slot_angle_rad
+from frontend.sign import ALL_CODES, N_BITS, sign_shape, slot_angle_rad
 
 REASONS: tuple[str, ...] = (
     "ok",
@@ -157,6 +157,18 @@ def _grow_directions() -> np.ndarray:
 
 
 _PART_GROW = _grow_directions()
+
+
+def _code_parts(code: str) -> tuple[list[int], tuple[str, ...], np.ndarray]:
+    """White parts of ``code``: part indices, keypoint names, sign-plane centres (P, 2)."""
+    names = ("center", "direction") + tuple(
+        f"slot{s}" for s in range(1, N_BITS + 1) if code[s - 1] == "1"
+    )
+    idx = [_PART_NAMES.index(n) for n in names]
+    return idx, names, _PART_CENTRES[idx]
+
+
+_CODE_PARTS = {code: _code_parts(code) for code in ALL_CODES}
 
 
 def _project(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -252,7 +264,7 @@ class DecodeResult:
 
 @dataclass
 class _Hole:
-    centroid: np.ndarray  # (2,) px
+    centroid: tuple[float, float]  # px
     area: float  # px^2 (contour polygon)
     cov: tuple[float, float, float]  # second central moments / area (uu, uv, vv) [px^2]
     aspect: float
@@ -288,9 +300,10 @@ def _hole(contour: np.ndarray, area: float) -> _Hole:
         m = d.T @ d / len(pts)
         cov = (float(m[0, 0]), float(m[0, 1]), float(m[1, 1]))
         area = float(len(pts))
+        c = (float(c[0]), float(c[1]))
     else:
         area, cu, cv, cov = mo
-        c = np.array([cu, cv])
+        c = (cu, cv)
     # A pixel's own extent.
     cov = (cov[0] + 1.0 / 12.0, cov[1], cov[2] + 1.0 / 12.0)
     lo, hi = _eig2(*cov)
@@ -543,7 +556,7 @@ def _affine_from_two(
     ``whitener`` maps image offsets to sign units up to a rotation; the
     rotation (and a scale check) come from the directional rectangle.
     """
-    q = whitener @ (direction - loc)
+    q = whitener @ np.subtract(direction, loc)
     r = float(np.hypot(*q))
     if r <= 1e-9:
         return None
@@ -936,7 +949,7 @@ def _try_hypothesis(
         return _fail("inconsistent", quality=reading.margin)
     code = reading.code
     # Sub-pixel refinement: gray-level centroids of every white part.
-    parts = [0, 1] + [1 + s for s in range(1, N_BITS + 1) if code[s - 1] == "1"]
+    parts, kp_names, kp_centres = _CODE_PARTS[code]
     pad = 1.5
     cents, valid = _subpixel_centroids(g, image_H_sign, parts, reading.black, reading.white, pad)
     use = [p for p, v in zip(parts, valid, strict=True) if v]
@@ -961,11 +974,8 @@ def _try_hypothesis(
         rms = float("nan")
     if allowed is not None and code not in allowed:
         return _fail("code_not_in_map", quality=reading.margin)
-    kp_names = ["center", "direction"] + [
-        f"slot{s}" for s in range(1, N_BITS + 1) if code[s - 1] == "1"
-    ]
-    kp_idx = [_PART_NAMES.index(n) for n in kp_names]
-    uv = _project(image_H_sign, _PART_CENTRES[kp_idx])
+    kp_idx = parts
+    uv = _project(image_H_sign, kp_centres)
     if 2 <= len(use) < 4 and rim_contour is not None and settings.perspective_correction:
         # Too few parts for a homography: take the perspective from the disc's
         # rim instead and remove each part's predicted centroid offset.
