@@ -173,3 +173,36 @@ def test_cli_decode_prints_json_lines(tmp_path, capsys):
     assert cli_main(["decode", str(good), "--codes", "0001"]) == 0
     last = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert last["code"] is None and last["reason"] == "code_not_in_map"
+
+
+def test_prepared_fits_match_plain_fits():
+    """The decoder's cached fits (prepared source, affine design) equal the plain ones."""
+    from frontend.homography import (
+        affine_design,
+        disc_ellipse,
+        ellipse_from_conic,
+        fit_affine,
+        fit_homography,
+        prepare_source,
+    )
+
+    rng = np.random.default_rng(11)
+    src = rng.uniform(-0.4, 0.4, (6, 2))
+    h_true = np.array([[80.0, 12.0, 50.0], [-9.0, -75.0, 40.0], [0.3, -0.2, 1.0]])
+    dst = cv2.perspectiveTransform(src.reshape(-1, 1, 2), h_true).reshape(-1, 2)
+    dst += rng.normal(0, 0.05, dst.shape)
+    for n in (4, 5, 6):
+        plain = fit_homography(src[:n], dst[:n])
+        fast = fit_homography(src[:n], dst[:n], prepare_source(src[:n]))
+        np.testing.assert_allclose(fast, plain, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(
+        fit_affine(src[:3], dst[:3], affine_design(src[:3])), fit_affine(src[:3], dst[:3])
+    )
+    # The disc ellipse in plain floats equals the matrix form of its conic.
+    _, hinv = cv2.invert(h_true)
+    conic = hinv.T @ np.diag([1.0, 1.0, -0.25]) @ hinv
+    np.testing.assert_allclose(
+        np.concatenate([np.ravel(v) for v in disc_ellipse(h_true, 1.0)]),
+        np.concatenate([np.ravel(v) for v in ellipse_from_conic(conic)]),
+        rtol=1e-9,
+    )
