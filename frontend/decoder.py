@@ -472,11 +472,12 @@ def _subpixel_centroids(
         cv2.fillConvexPoly(labels, pts[i], i + 1, lineType=cv2.LINE_8, shift=4)
     wt = gray[y0:y1, x0:x1] - np.float32(black)
     wt *= np.float32(1.0 / max(white - black, 1e-6))
-    np.clip(wt, 0.0, 1.0, out=wt)
+    np.maximum(wt, 0.0, out=wt)  # np.clip, as two ufuncs
+    np.minimum(wt, 1.0, out=wt)
     for i, (a0, b0, a1, b1) in zip(idx, boxes, strict=True):
         a0, b0, a1, b1 = a0 - x0, b0 - y0, a1 - x0, b1 - y0
         win = wt[b0:b1, a0:a1]
-        m = cv2.moments(np.where(labels[b0:b1, a0:a1] == i + 1, win, np.float32(0.0)))
+        m = cv2.moments(win * (labels[b0:b1, a0:a1] == i + 1))
         if m["m00"] > 0:
             out[i, 0] = x0 + a0 + m["m10"] / m["m00"]
             out[i, 1] = y0 + b0 + m["m01"] / m["m00"]
