@@ -88,6 +88,19 @@ class SmootherSettings:
         isam_final_updates: cap on the converging updates after the last frame.
         isam_init_gate_m: a per-frame initial pose further than this from the
             motion model's prediction is ignored [m].
+        isam_segment_frames: iSAM2 gives the landmarks (and the IMU bias)
+            a new variable every this many frames, tied to the previous one
+            by a ``BetweenFactor`` of sigma ``isam_copy_sigma`` (an equality
+            to 1e-5 m: the solution is the batch one). Every new frame's
+            factors touch the landmarks, so iSAM2 re-eliminates them at each
+            update and scans every factor attached to them: with one variable
+            per landmark that scan grows with the flight (40 ms per frame
+            after 1,000 frames); with copies it is bounded by the segment.
+            0 disables (one variable per landmark, as in the batch graph).
+        isam_copy_sigma: sigma of the ties between copies (metres for
+            landmarks, bias units for the bias); 1e-6 made iSAM2's Cholesky
+            report an indeterminate system, 1e-4 let the final estimate drift
+            0.5 mm from the batch one.
         compute_sigmas: compute per-pose marginal position sigmas.
         max_sigma_frames: skip the sigmas (NaN, with a warning) for longer
             flights: the marginals cost ~3-5 ms per pose here (every pose's
@@ -113,6 +126,8 @@ class SmootherSettings:
     isam_wildfire: float = 0.01
     isam_landmarks_last: bool = True
     isam_init_gate_m: float = 1.0
+    isam_segment_frames: int = 50
+    isam_copy_sigma: float = 1e-5
     compute_sigmas: bool = True
     max_sigma_frames: int = 3000
 
@@ -282,13 +297,19 @@ class _GraphBuilder:
         self._meas_lm = m.landmark.tolist()
         self._lm_keys = [L(j) for j in range(len(m.landmark_code))]
 
-    def projection_factors(self, i: int, graph: gtsam.NonlinearFactorGraph) -> set[int]:
-        """Add frame i's projection factors; return the landmarks they touch."""
+    def projection_factors(
+        self, i: int, graph: gtsam.NonlinearFactorGraph, lm_keys: list[int] | None = None
+    ) -> set[int]:
+        """Add frame i's projection factors; return the landmarks they touch.
+
+        ``lm_keys`` maps landmark index to variable key (default ``L(j)``).
+        """
         if not hasattr(self, "_meas_px"):
             self._prepare_projection()
         xi = X(i)
         cal = self.K
-        px, noise, lm, keys = self._meas_px, self._meas_noise, self._meas_lm, self._lm_keys
+        px, noise, lm = self._meas_px, self._meas_noise, self._meas_lm
+        keys = self._lm_keys if lm_keys is None else lm_keys
         make = gtsam.GenericProjectionFactorCal3_S2
         ids = self._order[self._starts[i] : self._starts[i + 1]].tolist()
         add = graph.add
@@ -299,7 +320,9 @@ class _GraphBuilder:
     def dt(self, i: int) -> float:
         return max(float(self.stamps[i] - self.stamps[i - 1]), self.s.min_dt_s)
 
-    def motion_factor(self, i: int, graph: gtsam.NonlinearFactorGraph) -> None:
+    def motion_factor(
+        self, i: int, graph: gtsam.NonlinearFactorGraph, bias_key: int = BIAS_KEY
+    ) -> None:
         """The motion prior between frames i-1 and i."""
         s, dt = self.s, self.dt(i)
         if s.motion == RANDOM_WALK:
@@ -319,7 +342,7 @@ class _GraphBuilder:
                     pim.integrateMeasurement(np.zeros(3), np.zeros(3), dt / 4)
                 self._pim_cache[key] = pim
             graph.add(
-                gtsam.ImuFactor(X(i - 1), V(i - 1), X(i), V(i), BIAS_KEY, self._pim_cache[key])
+                gtsam.ImuFactor(X(i - 1), V(i - 1), X(i), V(i), bias_key, self._pim_cache[key])
             )
 
     def first_priors(self, pose0: gtsam.Pose3, graph: gtsam.NonlinearFactorGraph) -> None:
@@ -600,19 +623,46 @@ def smooth_isam2(
     gn.setWildfireThreshold(s.isam_wildfire)
     p.setOptimizationParams(gn)
     isam = gtsam.ISAM2(p)
+    n_lm = len(meas.landmark_code)
+    seg_len = int(s.isam_segment_frames)
+    cv = s.motion == CONSTANT_VELOCITY
+    lm_keys = [L(j) for j in range(n_lm)]  # the current copy of each landmark
     added_lm: set[int] = set()
+    bias_key = BIAS_KEY
+    segment = 0
+    tie_point = gtsam.noiseModel.Isotropic.Sigma(3, s.isam_copy_sigma)
+    tie_bias = gtsam.noiseModel.Isotropic.Sigma(6, s.isam_copy_sigma)
     causal = np.empty((n, 4, 4))
     per_ms = np.empty(n)
+    per_cpu_ms = np.empty(n)
     prev_pose = None
     prev_vel = np.zeros(3)
     for i in tqdm(range(n), desc="iSAM2", unit="frame", disable=not progress, leave=False):
-        t_frame = time.perf_counter()
+        t_frame, c_frame = time.perf_counter(), time.process_time()
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
+        if seg_len > 0 and i > 0 and i // seg_len != segment:
+            # A new segment: fresh copies of the landmarks seen so far (and of
+            # the bias), tied to the old ones, take this segment's factors.
+            segment = i // seg_len
+            for j in sorted(added_lm):
+                new_key = gtsam.symbol("m", segment * n_lm + j)
+                values.insert(new_key, isam.calculateEstimatePoint3(lm_keys[j]))
+                graph.add(gtsam.BetweenFactorPoint3(lm_keys[j], new_key, np.zeros(3), tie_point))
+                lm_keys[j] = new_key
+            if cv:
+                new_bias = gtsam.symbol("c", segment)
+                values.insert(new_bias, isam.calculateEstimateConstantBias(bias_key))
+                graph.add(
+                    gtsam.BetweenFactorConstantBias(
+                        bias_key, new_bias, gtsam.imuBias.ConstantBias(), tie_bias
+                    )
+                )
+                bias_key = new_bias
         predicted = None
         if prev_pose is not None:
             predicted = prev_pose
-            if s.motion == CONSTANT_VELOCITY:
+            if cv:
                 predicted = gtsam.Pose3(
                     prev_pose.rotation(), prev_pose.translation() + prev_vel * b.dt(i)
                 )
@@ -627,36 +677,39 @@ def smooth_isam2(
         values.insert(X(i), guess)
         if i == 0:
             b.first_priors(guess, graph)
-            if s.motion == CONSTANT_VELOCITY:
+            if cv:
                 values.insert(BIAS_KEY, gtsam.imuBias.ConstantBias())
-        if s.motion == CONSTANT_VELOCITY:
+        if cv:
             values.insert(V(i), prev_vel)
-        touched = b.projection_factors(i, graph)
+        touched = b.projection_factors(i, graph, lm_keys)
         for j in sorted(touched - added_lm):
-            graph.add(b.landmark_prior(j))
-            values.insert(L(j), meas.landmark_world[j])
+            lm_keys[j] = L(j) if segment == 0 else gtsam.symbol("m", segment * n_lm + j)
+            noise = gtsam.noiseModel.Isotropic.Sigma(3, float(meas.landmark_sigma_m[j]))
+            graph.add(gtsam.PriorFactorPoint3(lm_keys[j], meas.landmark_world[j], noise))
+            values.insert(lm_keys[j], meas.landmark_world[j])
             added_lm.add(j)
         if i > 0:
-            b.motion_factor(i, graph)
+            b.motion_factor(i, graph, bias_key)
         if s.isam_landmarks_last:
             upd = gtsam.ISAM2UpdateParams()
             groups = gtsam.KeyGroupMap()
             for j in added_lm:
-                groups.insert2(L(j), 2)
-            if s.motion == CONSTANT_VELOCITY:
-                groups.insert2(BIAS_KEY, 2)
+                groups.insert2(lm_keys[j], 2)
+            if cv:
+                groups.insert2(bias_key, 2)
             groups.insert2(X(i), 1)
-            if s.motion == CONSTANT_VELOCITY:
+            if cv:
                 groups.insert2(V(i), 1)
             upd.constrainedKeys = groups
             isam.update(graph, values, upd)
         else:
             isam.update(graph, values)
         prev_pose = isam.calculateEstimatePose3(X(i))
-        if s.motion == CONSTANT_VELOCITY:
+        if cv:
             prev_vel = np.asarray(isam.calculateEstimateVector(V(i))).reshape(3)
         causal[i] = prev_pose.matrix()
         per_ms[i] = (time.perf_counter() - t_frame) * 1e3
+        per_cpu_ms[i] = (time.process_time() - c_frame) * 1e3
     # Converge to the batch solution. The running iSAM2 only relinearises
     # variables whose delta exceeds its threshold, which leaves the final
     # estimate centimetres from the optimum; so the final estimate is one more
@@ -685,7 +738,7 @@ def smooth_isam2(
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
     lms = np.array(
         [
-            result.atPoint3(L(j)) if j in added_lm else meas.landmark_world[j]
+            result.atPoint3(lm_keys[j]) if j in added_lm else meas.landmark_world[j]
             for j in range(len(meas.landmark_code))
         ]
     ).reshape(-1, 3)
@@ -709,6 +762,7 @@ def smooth_isam2(
         per_ms,
         0,
         float(isam.getFactorsUnsafe().error(result)),
+        {"per_frame_cpu_ms": per_cpu_ms},
     )
 
 
