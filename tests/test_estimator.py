@@ -229,3 +229,28 @@ def test_gross_outliers_are_gated_and_reported():
     )
     zero = [o for o in r.outliers.downweighted if o.weight == 0.0]
     assert [(o.frame, o.code) for o in zero] == [(2, bad.code)]
+
+
+def test_isam2_landmark_copies_across_segments_equal_batch():
+    # Segments of 7 frames: the 30-frame flight uses five copies of every landmark.
+    sign_map, camera, frames, _, _ = estimator_scene(n_frames=30, sigma_px=0.3, seed=3)
+    out = {}
+    for solver in ("batch", "isam2"):
+        smoother = SmootherSettings(compute_sigmas=False, isam_segment_frames=7)
+        s = EstimatorSettings(methods=("smoothed",), solver=solver, smoother=smoother)
+        out[solver] = estimate_trajectories(frames, sign_map, camera, s, progress=False)
+    b = out["batch"].methods["smoothed"].world_T_cam[:, :3, 3]
+    i = out["isam2"].methods["smoothed"].world_T_cam[:, :3, 3]
+    assert np.abs(b - i).max() < 1e-3
+
+
+def test_pnp_warm_start_fits_at_least_as_well_as_cold_solve():
+    # The chained run takes the warm-start shortcut (no RANSAC); every frame's
+    # reprojection error must be no worse than the cold RANSAC + LM solve's.
+    sign_map, camera, frames, _, _ = estimator_scene(n_frames=10, sigma_px=0.3, flat=False)
+    warm = run_per_frame(frames, sign_map, camera, "pnp")
+    for k, f in enumerate(frames[1:], start=1):
+        cold = solve_frame_pnp(f, sign_map, camera)
+        assert warm[k].world_T_cam is not None and cold.world_T_cam is not None
+        assert warm[k].signs_used == cold.signs_used
+        assert warm[k].rms_px <= cold.rms_px + 1e-9
