@@ -4,7 +4,10 @@
 Reports: batch Levenberg-Marquardt seconds (graph building + optimisation),
 the marginal covariances' seconds separately, and iSAM2's median update time
 per frame (including building that frame's factors and reading its estimate).
-Initial values come from per-frame PnP (timed too). The flight is the
+Initial values come from per-frame PnP (timed too, and added to the batch time
+in the "what a user waits for" line). Every figure is wall time with the
+process's CPU time beside it (the machine is shared; run with
+OPENBLAS_NUM_THREADS=1). The flight is the
 lawnmower pattern in front of the demo map, 0.4 px keypoint noise, 30 fps.
 
     .venv/bin/python scripts/bench_estimator.py [--frames 10000] [--motion ...]
