@@ -55,6 +55,11 @@ class PerFrameSettings:
         warm_start_min_signs: with a prior pose and at least this many signs,
             PnP trusts LM from the prior when every keypoint then fits within
             ``ransac_px`` and skips RANSAC.
+        warm_start_max_move_m: ... and only when LM moved the camera less than
+            this from the prior [m]. A prior far from the truth (a long gap
+            between frames) can lead LM into a wrong minimum that still fits
+            within a pixel or two (the lateral-shift/rotation valley of a narrow
+            view); the cold RANSAC solve then decides.
     """
 
     ransac_px: float = 3.0
@@ -66,6 +71,7 @@ class PerFrameSettings:
     pnp_ransac: bool = True
     planar_tol_m: float = 1e-3
     warm_start_min_signs: int = 4
+    warm_start_max_move_m: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -375,6 +381,7 @@ def solve_frame_pnp(
             err, depth = _reproject_errors(camera, T, c.world, c.px)
             if (
                 len(distinct) >= s.warm_start_min_signs
+                and np.linalg.norm(T[:3, 3] - prior_world_T_cam[:3, 3]) < s.warm_start_max_move_m
                 and np.all(depth > 0)
                 and np.all(np.isfinite(err))
                 and err.max() < s.ransac_px
