@@ -1477,6 +1477,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     t_start = time.perf_counter()
     load_start = _load()
+    commit = _git_head()  # what the steps run; others may commit while they do
     out_path = args.out.resolve()
     if args.report_only and args.work is None:
         ap.error("--report-only needs the --work folder of an earlier run")
@@ -1555,7 +1556,7 @@ def main(argv: list[str] | None = None) -> int:
         "opencv": _version("opencv-python-headless", "opencv-python", "opencv-contrib-python"),
         "gtsam": _version("gtsam", "gtsam-develop"),
         "numpy": _version("numpy"),
-        "commit": _git_head(),
+        "commit": commit,
         "quick": args.quick,
         "load_start": load_start,
         "load_end": _load(),
