@@ -835,7 +835,9 @@ class Mp4Writer(_WriterBase):
 
 
 class PngWriter(_WriterBase):
-    """``frames/NNNNNN.png``: written into a temporary folder that replaces ``frames`` on close."""
+    """``frames/NNNNNN.png`` plus ``frames/frames.csv`` (filename,stamp_ns), so the folder
+    is a ready input for ``signpose run`` without ``--fps``; written into a temporary
+    folder that replaces ``frames`` on close."""
 
     def __init__(self, path: Path):
         self.path = Path(path)
@@ -847,13 +849,18 @@ class PngWriter(_WriterBase):
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(self._tmp, 0o777 & ~umask)
+        self._stamps: list[tuple[str, int]] = []
 
     def write(self, frame_index: int, stamp_ns: int, bgr: np.ndarray) -> None:
         target = self._tmp / f"{frame_index:06d}.png"
         if not cv2.imwrite(str(target), bgr):
             raise OutputError(f"{self.path}: could not write {target.name}")
+        self._stamps.append((target.name, int(stamp_ns)))
 
     def close(self) -> Path:
+        with open(self._tmp / "frames.csv", "w", encoding="utf-8") as f:
+            f.write("filename,stamp_ns\n")
+            f.writelines(f"{name},{stamp}\n" for name, stamp in self._stamps)
         old = None
         if self.path.exists():
             old = self.path.parent / f".{self.path.name}.old.{os.getpid()}"

@@ -210,9 +210,14 @@ def test_simulate_writes_everything_and_is_deterministic(demo_map, tmp_path):
 def test_simulate_png_outputs_and_ground_truth_files(demo_map, tmp_path):
     settings = SimSettings(frames=3, width=480, height=270, hfov_deg=20.0, format="png", fps=25.0)
     res = simulate(demo_map, tmp_path / "png", settings, progress=False)
-    frames = sorted(res.frames_path.iterdir())
+    frames = sorted(p for p in res.frames_path.iterdir() if p.suffix == ".png")
     assert [p.name for p in frames] == ["000000.png", "000001.png", "000002.png"]
     assert cv2.imread(str(frames[0])).shape == (270, 480, 3)
+    # frames.csv makes the folder an input that needs no --fps.
+    from signpose.inputs import open_source
+
+    stamps = [f.stamp_ns for f in open_source(res.frames_path)]
+    assert stamps == [0, 40_000_000, 80_000_000]
     again = simulate(demo_map, tmp_path / "png2", settings, progress=False)
     assert _outputs(res) == _outputs(again)
     cam = load_camera(res.camera_path)
