@@ -28,6 +28,7 @@ import cv2
 
 from frontend.detector import SignDetector
 from maps.loader import bundled_map_path, load_map
+from signpose.fileio import atomic_write
 from signpose.simulate import SimSettings, read_boxes, simulate
 
 BENCH_SEED = 5151
@@ -110,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     results["found_fraction"] = found
     if args.json:
-        args.json.write_text(json.dumps({"frames": n, "seed": BENCH_SEED, **results}, indent=1))
+        with atomic_write(args.json) as f:
+            json.dump({"frames": n, "seed": BENCH_SEED, **results}, f, indent=1)
     return 0
 
 

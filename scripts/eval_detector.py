@@ -33,6 +33,7 @@ import numpy as np
 
 from frontend.detector import DetectorSettings, SignDetector
 from maps.loader import bundled_map_path, load_map
+from signpose.fileio import atomic_write
 from signpose.simulate import SimSettings, read_boxes, simulate
 
 BINS = ((18, 30), (30, 60), (60, 200))
@@ -195,9 +196,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{100 * r['recall_of_decodable']:6.2f}%"
             )
     if args.json:
-        args.json.write_text(
-            json.dumps({"frames": n_frames, "seed": args.seed, "results": results}, indent=1)
-        )
+        with atomic_write(args.json) as f:
+            json.dump({"frames": n_frames, "seed": args.seed, "results": results}, f, indent=1)
     return 0
 
 
