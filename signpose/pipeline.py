@@ -18,7 +18,6 @@ import contextlib
 import logging
 import math
 import os
-import tempfile
 import threading
 import time
 from collections import deque
@@ -35,7 +34,7 @@ from estimator.camera import CameraModel, check_image_size, pixel_from_world_poi
 from frontend.observations import FrameObservations, append_observation
 from maps.loader import SignMap
 from signpose.errors import InputError, OutputError
-from signpose.fileio import ensure_dir
+from signpose.fileio import atomic_write, ensure_dir
 from signpose.inputs import FrameSource, open_source, prefetch
 
 log = logging.getLogger(__name__)
@@ -165,13 +164,10 @@ class ObservationStream:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        parent = self.path.parent if str(self.path.parent) else Path(".")
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=parent)
-        except OSError as exc:
-            raise OutputError(f"{self.path}: cannot write here ({exc.strerror})") from None
-        self._tmp = Path(tmp)
-        self._handle: IO[str] | None = os.fdopen(fd, "w", encoding="utf-8")
+        self._stack = contextlib.ExitStack()
+        self._handle: IO[str] | None = self._stack.enter_context(
+            atomic_write(self.path, "w", encoding="utf-8")
+        )
         self.lines = 0
 
     def append(self, obs: FrameObservations) -> None:
@@ -180,34 +176,22 @@ class ObservationStream:
         self._handle.flush()
         self.lines += 1
 
-    def _close(self) -> None:
-        if self._handle is not None:
-            self._handle.flush()
-            with contextlib.suppress(OSError):
-                os.fsync(self._handle.fileno())
-            self._handle.close()
-            self._handle = None
-
     def finish(self) -> Path:
-        self._close()
-        os.replace(self._tmp, self.path)
+        self._handle = None
+        self._stack.close()
         return self.path
 
     def finish_partial(self) -> Path | None:
         """Keep the complete lines (if any) at ``path``."""
-        self._close()
         if self.lines == 0:
             self.abort()
             return None
-        os.replace(self._tmp, self.path)
-        return self.path
+        return self.finish()
 
     def abort(self) -> None:
         if self._handle is not None:
-            self._handle.close()
             self._handle = None
-        with contextlib.suppress(OSError):
-            self._tmp.unlink()
+            self._stack.__exit__(OutputError, OutputError("aborted"), None)
 
 
 # --------------------------------------------------------------------------- tracking
