@@ -493,10 +493,9 @@ class SignDetector:
                 score,
                 float(res.sigma_px),
             )
-            # A code appears once per frame: keep the strongest reading.
+            # A code appears once per frame: keep the strongest reading (a
+            # duplicate region of the same sign is not counted as undecoded).
             if res.code not in best or det.score > best[res.code].score:
-                if res.code in best:
-                    undecoded += 0  # a duplicate region of the same sign is not an error
                 best[res.code] = det
         return list(best.values()), undecoded
 
