@@ -12,11 +12,14 @@ from typing import IO
 from signpose.errors import OutputError
 
 
-def _umask_mode() -> int:
-    """File mode a plain ``open()`` would give (mkstemp alone would leave 0600)."""
+def umask_mode(directory: bool = False) -> int:
+    """Mode a plain ``open()`` (or ``mkdir()`` if ``directory``) would give.
+
+    mkstemp/mkdtemp alone would leave 0600/0700.
+    """
     mask = os.umask(0)
     os.umask(mask)
-    return 0o666 & ~mask
+    return (0o777 if directory else 0o666) & ~mask
 
 
 def ensure_dir(path: str | os.PathLike) -> Path:
@@ -45,7 +48,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator
     except OSError as exc:
         raise OutputError(f"{target}: cannot write here ({exc.strerror})") from None
     try:
-        os.chmod(tmp, _umask_mode())
+        os.chmod(tmp, umask_mode())
         with os.fdopen(fd, mode, **kwargs) as handle:
             yield handle
             handle.flush()
@@ -75,7 +78,7 @@ def _atomic_path(target: Path) -> Iterator[Path]:
     except OSError as exc:
         raise OutputError(f"{target}: cannot write here ({exc.strerror})") from None
     os.close(fd)
-    os.chmod(tmp, _umask_mode())
+    os.chmod(tmp, umask_mode())
     tmp_path = Path(tmp)
     try:
         yield tmp_path

@@ -64,7 +64,7 @@ from frontend.render import (
 from frontend.sign import sign_keypoints, sign_shape
 from maps.loader import SignMap, write_map
 from signpose.errors import InputError, OutputError
-from signpose.fileio import atomic_path, atomic_write, ensure_dir
+from signpose.fileio import atomic_path, atomic_write, ensure_dir, umask_mode
 from signpose.trajectories import TRAJECTORIES, make_trajectory
 
 log = logging.getLogger(__name__)
@@ -846,9 +846,7 @@ class PngWriter(_WriterBase):
         except OSError as exc:
             raise OutputError(f"{self.path}: cannot write here ({exc.strerror})") from None
         # mkdtemp makes a private folder; give it the usual permissions.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(self._tmp, 0o777 & ~umask)
+        os.chmod(self._tmp, umask_mode(directory=True))
         self._stamps: list[tuple[str, int]] = []
 
     def write(self, frame_index: int, stamp_ns: int, bgr: np.ndarray) -> None:
