@@ -814,15 +814,14 @@ def _decode_region_contour(
     cut = _LazyFlag(
         lambda: touches and _border_run(outer, w, h) >= max(4.0, 0.15 * math.sqrt(area))
     )
+    # The disc's second moments: (R^2 / 4) I with R = 0.5 diameters; the same
+    # for every location candidate.
+    disc_whitener = _whitener(outer_cov, 0.0625) if disc_like else None
     best = _fail("no_location")
     for li in by_dist[: settings.max_location_candidates]:
         loc = holes[li]
-        if disc_like:
-            # The disc's second moments: (R^2 / 4) I with R = 0.5 diameters.
-            whitener = _whitener(outer_cov, 0.0625)
-        else:
-            # The location square's: side^2 / 12 I.
-            whitener = _whitener(loc.cov, _LOCATION_SIDE**2 / 12.0)
+        # The disc's whitener, else the location square's (side^2 / 12 I).
+        whitener = disc_whitener if disc_like else _whitener(loc.cov, _LOCATION_SIDE**2 / 12.0)
         if whitener is None:
             continue
         rel = (cents - loc.centroid) @ whitener.T
