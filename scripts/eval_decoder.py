@@ -135,7 +135,7 @@ def geometric_bias(crop) -> tuple[np.ndarray, np.ndarray]:
     return centroid - centre, ellipse_c - centre
 
 
-def run_set(params_list, rng, settings, desc, quiet, timing=False):
+def run_set(params_list, rng, settings, desc, quiet):
     rows = []
     for p in tqdm(params_list, desc=desc, disable=quiet, leave=False):
         kw = dict(p)
@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # ---- Table 2: main set.
     params = [main_params(rng, i) for i in range(n_main)]
-    rows = run_set(params, rng, settings, "main set", args.quiet, timing=True)
+    rows = run_set(params, rng, settings, "main set", args.quiet)
     per_code: dict[str, Counter] = defaultdict(Counter)
     for r in rows:
         code = r["p"]["code"]
