@@ -168,13 +168,8 @@ def test_raw_image_json_round_trip(tmp_path):
     assert frames[0].stamp_ns == 5
 
 
-_IMAGE_MSGDEF = """std_msgs/Header header
-uint32 height
-uint32 width
-string encoding
-uint8 is_bigendian
-uint32 step
-uint8[] data
+# The message definitions every ROS 2 schema below ends with (Header and its Time).
+_HEADER_MSGDEFS = """\
 ================================================================================
 MSG: std_msgs/Header
 builtin_interfaces/Time stamp
@@ -185,7 +180,28 @@ int32 sec
 uint32 nanosec
 """
 
-_CAMERA_INFO_MSGDEF = """std_msgs/Header header
+_IMAGE_MSGDEF = (
+    """std_msgs/Header header
+uint32 height
+uint32 width
+string encoding
+uint8 is_bigendian
+uint32 step
+uint8[] data
+"""
+    + _HEADER_MSGDEFS
+)
+
+_COMPRESSED_MSGDEF = (
+    """std_msgs/Header header
+string format
+uint8[] data
+"""
+    + _HEADER_MSGDEFS
+)
+
+_CAMERA_INFO_MSGDEF = (
+    """std_msgs/Header header
 uint32 height
 uint32 width
 string distortion_model
@@ -193,15 +209,9 @@ float64[] d
 float64[9] k
 float64[9] r
 float64[12] p
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
 """
+    + _HEADER_MSGDEFS
+)
 
 
 def test_ros2_image_and_camera_info(tmp_path):
@@ -316,20 +326,6 @@ def test_writer_abort_leaves_no_file(tmp_path):
         w.write("/p", "PoseInFrame", mcap_io.pose_in_frame(0, "w", np.eye(4)), 0)
         raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
-
-
-_COMPRESSED_MSGDEF = """std_msgs/Header header
-string format
-uint8[] data
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
 
 
 def test_ros2_compressed_image(tmp_path):
