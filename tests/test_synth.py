@@ -6,6 +6,7 @@ import pytest
 from frontend.homography import apply_homography, fit_homography
 from frontend.sign import ALL_CODES, sign_keypoints
 from frontend.synth import BACKGROUNDS, render_background, render_crop
+from signpose.errors import InputError
 
 
 def test_same_seed_same_crop():
@@ -66,6 +67,6 @@ def test_backgrounds(kind):
 def test_unknown_inputs_raise():
     with pytest.raises(ValueError):
         render_crop("0101", np.random.default_rng(0), sign_px=30, background="moon")
-    with pytest.raises(Exception):  # noqa: B017 - InputError from the sign module
+    with pytest.raises(InputError):  # from the sign module
         render_crop("0102", np.random.default_rng(0), sign_px=30)
     assert len(ALL_CODES) == 16
