@@ -155,13 +155,6 @@ def _degenerate(points: np.ndarray, s: PerFrameSettings) -> str:
     return ""
 
 
-def _reproject_rms(camera: CameraModel, world_T_cam: np.ndarray, X: np.ndarray, px: np.ndarray):
-    cam_T_world = np.linalg.inv(world_T_cam)
-    Xc = X @ cam_T_world[:3, :3].T + cam_T_world[:3, 3]
-    uv = Xc[:, :2] / Xc[:, 2:3] * [camera.fx, camera.fy] + [camera.cx, camera.cy]
-    return float(np.sqrt(np.mean(np.sum((uv - px) ** 2, axis=1)))), Xc[:, 2]
-
-
 def _reproject_errors(
     camera: CameraModel, world_T_cam: np.ndarray, X: np.ndarray, px: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -171,6 +164,14 @@ def _reproject_errors(
     z = np.where(np.abs(Xc[:, 2]) < 1e-12, 1e-12, Xc[:, 2])
     uv = Xc[:, :2] / z[:, None] * [camera.fx, camera.fy] + [camera.cx, camera.cy]
     return np.linalg.norm(uv - px, axis=1), Xc[:, 2]
+
+
+def _reproject_rms(
+    camera: CameraModel, world_T_cam: np.ndarray, X: np.ndarray, px: np.ndarray
+) -> tuple[float, np.ndarray]:
+    """RMS reprojection error [px] and (N,) depth [m] of world points X."""
+    err, depth = _reproject_errors(camera, world_T_cam, X, px)
+    return float(np.sqrt(np.mean(err**2))), depth
 
 
 def _warm_start(X, x, K, dist, prior_world_T_cam: np.ndarray):
