@@ -60,23 +60,27 @@ def _run_error(argv, capsys) -> str:
     return err
 
 
+def _estimate_argv(obs, sign_map, cam, out) -> list[str]:
+    return [
+        "estimate",
+        str(obs),
+        "--map",
+        str(sign_map),
+        "--camera",
+        str(cam),
+        "--out",
+        str(out),
+        "--quiet",
+    ]
+
+
 def test_malformed_observation_line(flight, tmp_path, capsys):
     obs, cam, _, _ = flight
     lines = obs.read_text().splitlines()
     lines[3] = '{"frame": 3, "signs": 5}'
     obs.write_text("\n".join(lines) + "\n")
     err = _run_error(
-        [
-            "estimate",
-            str(obs),
-            "--map",
-            str(bundled_map_path()),
-            "--camera",
-            str(cam),
-            "--out",
-            str(tmp_path / "o"),
-            "--quiet",
-        ],
+        _estimate_argv(obs, bundled_map_path(), cam, tmp_path / "o"),
         capsys,
     )
     assert "line 4" in err and str(obs) in err
@@ -87,17 +91,7 @@ def test_camera_size_mismatch(flight, tmp_path, capsys):
     cam = tmp_path / "small.yaml"
     write_camera_info(cam, pinhole_camera(1280, 720))
     err = _run_error(
-        [
-            "estimate",
-            str(obs),
-            "--map",
-            str(bundled_map_path()),
-            "--camera",
-            str(cam),
-            "--out",
-            str(tmp_path / "o"),
-            "--quiet",
-        ],
+        _estimate_argv(obs, bundled_map_path(), cam, tmp_path / "o"),
         capsys,
     )
     assert "1920x1080" in err and "1280x720" in err
@@ -111,17 +105,7 @@ def test_map_without_shared_code(flight, tmp_path, capsys):
         "    diameter_m: 0.8\n    sigma_m: 0.01\n"
     )
     err = _run_error(
-        [
-            "estimate",
-            str(obs),
-            "--map",
-            str(m),
-            "--camera",
-            str(cam),
-            "--out",
-            str(tmp_path / "o"),
-            "--quiet",
-        ],
+        _estimate_argv(obs, m, cam, tmp_path / "o"),
         capsys,
     )
     assert str(m) in err and "no code" in err
