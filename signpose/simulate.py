@@ -642,7 +642,7 @@ def render_frame(
         rn = np.hypot(cam_disc[:, 0], cam_disc[:, 1]) / cam_disc[:, 2]
         if np.any(rn > 1.3):
             continue
-        disc_px, _ = pixel_from_world_point(cam, world_T_cam, s.disc_m)
+        disc_px = pixel_from_cam_point(cam, cam_disc)  # every depth > 0.3 m: all finite
         lo, hi = disc_px.min(axis=0), disc_px.max(axis=0)
         if hi[0] < -0.5 or hi[1] < -0.5 or lo[0] > w - 0.5 or lo[1] > h - 0.5:
             continue
