@@ -171,6 +171,12 @@ def _code_parts(code: str) -> tuple[list[int], tuple[str, ...], np.ndarray]:
 _CODE_PARTS = {code: _code_parts(code) for code in ALL_CODES}
 
 
+def _translated(h: np.ndarray, shift_px) -> np.ndarray:
+    """(3, 3) ``h`` followed by a shift of (du, dv) pixels."""
+    du, dv = shift_px
+    return np.array([[1.0, 0.0, du], [0.0, 1.0, dv], [0.0, 0.0, 1.0]]) @ h
+
+
 def _project(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """(N, 2) sign-plane points through (3, 3) ``h`` to pixels."""
     return cv2.perspectiveTransform(xy.reshape(-1, 1, 2), h).reshape(-1, 2)
@@ -987,7 +993,7 @@ def _try_hypothesis(
             fixed = dict(zip(use, cents_used - offset, strict=True))
             uv = np.array([fixed.get(p, q) for p, q in zip(kp_idx, uv, strict=True)])
             shift = fixed[0] - _project(h_rim, _PART_CENTRES[:1])[0]
-            image_H_sign = np.array([[1, 0, shift[0]], [0, 1, shift[1]], [0, 0, 1.0]]) @ h_rim
+            image_H_sign = _translated(h_rim, shift)
     keypoints = {n: (p[0], p[1]) for n, p in zip(kp_names, np.asarray(uv).tolist(), strict=True)}
     ellipse = _safe_disc_ellipse(image_H_sign)
     if ellipse is None:
@@ -1091,7 +1097,7 @@ def _refit_fallback(image_H_sign: np.ndarray, cents: np.ndarray, valid: np.ndarr
     h = image_H_sign.copy()
     if valid[0]:
         shift = cents[0] - _project(image_H_sign, _PART_CENTRES[:1])[0]
-        h = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]]) @ h
+        h = _translated(h, shift)
     return h
 
 
@@ -1122,7 +1128,6 @@ def decode_region(
     res = decode_roi(img[y0:y1, x0:x1], codes, settings)
     if res.code is None:
         return res
-    shift = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
     (cx, cy), axes, ang = res.ellipse
     return DecodeResult(
         code=res.code,
@@ -1131,6 +1136,6 @@ def decode_region(
         ellipse=((cx + x0, cy + y0), axes, ang),
         quality=res.quality,
         sigma_px=res.sigma_px,
-        image_H_sign=shift @ res.image_H_sign,
+        image_H_sign=_translated(res.image_H_sign, (x0, y0)),
         residual_px=res.residual_px,
     )
