@@ -144,10 +144,14 @@ def _correspondences(
     return _Correspondences(codes, names, world_a, px)
 
 
-def _degenerate(points: np.ndarray, s: PerFrameSettings) -> str:
-    """A reason when the points cannot fix a pose (one spot, collinear), else ""."""
+def _spread(points: np.ndarray) -> np.ndarray:
+    """(3,) RMS spread of the points along their principal directions [m], largest first."""
     centred = points - points.mean(axis=0)
-    sv = np.linalg.svd(centred, compute_uv=False) / np.sqrt(max(len(points), 1))
+    return np.linalg.svd(centred, compute_uv=False) / np.sqrt(max(len(points), 1))
+
+
+def _degenerate(sv: np.ndarray, s: PerFrameSettings) -> str:
+    """A reason when points of spread ``sv`` (see _spread) cannot fix a pose, else ""."""
     if sv[0] < s.min_spread_m:
         return REASON_ONE_SPOT
     if sv[1] < s.min_aspect * sv[0] or sv[1] < s.min_spread_m:
@@ -313,7 +317,7 @@ def solve_frame_baseline(
     distinct = sorted(set(c.codes))
     if len(distinct) < 4:
         return FramePose(frame.frame, frame.stamp_ns, None, REASON_FEW_SIGNS, len(distinct))
-    reason = _degenerate(c.world, s)
+    reason = _degenerate(_spread(c.world), s)
     if reason:
         return FramePose(frame.frame, frame.stamp_ns, None, reason, len(distinct))
     normalised = (c.px - [camera.cx, camera.cy]) / [camera.fx, camera.fy]  # K^-1 applied
@@ -360,7 +364,8 @@ def solve_frame_pnp(
     distinct = sorted(set(c.codes))
     if len(c.world) < 4:
         return FramePose(f.frame, f.stamp_ns, None, REASON_FEW_POINTS, len(distinct))
-    reason = _degenerate(c.world, s)
+    spread = _spread(c.world)
+    reason = _degenerate(spread, s)
     if reason:
         return FramePose(f.frame, f.stamp_ns, None, reason, len(distinct))
     K = camera.K.astype(float)
@@ -403,10 +408,7 @@ def solve_frame_pnp(
                 candidates.append((rvec, tvec))
                 ransac_ok = True
         if not ransac_ok:
-            centred = c.world - c.world.mean(axis=0)
-            sv = np.linalg.svd(centred, compute_uv=False)
-            planar = sv[2] / np.sqrt(len(c.world)) < s.planar_tol_m
-            if planar:
+            if spread[2] < s.planar_tol_m:  # planar
                 n, rvecs, tvecs, _ = cv2.solvePnPGeneric(X, x, K, dist, flags=cv2.SOLVEPNP_IPPE)
                 candidates += list(zip(rvecs, tvecs, strict=False))[:n]
             else:
