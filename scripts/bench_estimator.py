@@ -35,6 +35,7 @@ from estimator.smoother import (
 )
 from estimator.synthetic import SyntheticSettings, paper_like_frames
 from maps.loader import bundled_map_path, load_map
+from signpose.fileio import atomic_write
 
 
 def main(argv=None) -> int:
@@ -137,7 +138,7 @@ def main(argv=None) -> int:
             print(f"iSAM2 final vs batch: max position difference {d * 1e3:.3f} mm")
             out["isam2_vs_batch_mm"] = float(d * 1e3)
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as f:
+        with atomic_write(args.json, encoding="utf-8") as f:
             json.dump(out, f, indent=2)
     return 0
 

@@ -40,6 +40,7 @@ from estimator.smoother import (
 from estimator.synthetic import SyntheticSettings, flatten_map, paper_like_frames
 from estimator.tum import Trajectory
 from maps.loader import bundled_map_path, load_map
+from signpose.fileio import atomic_write
 
 FAULTS = {"clean": (0.0, 0.0), "faults": (0.05, 0.02)}
 
@@ -216,7 +217,7 @@ def main(argv=None) -> int:
     results["planarity_sweep"] = sweep
     print(f"\n# total {time.perf_counter() - t_start:.0f} s")
     if args.json:
-        with open(args.json, "w", encoding="utf-8") as f:
+        with atomic_write(args.json, encoding="utf-8") as f:
             json.dump(results, f, indent=2)
     return 0
 
