@@ -9,12 +9,13 @@ CLI is a thin layer over them.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from estimator.camera import CameraModel
+from estimator.camera import CameraModel, undistort_px
 from estimator.perframe import FramePose, PerFrameSettings, run_per_frame
 from estimator.smoother import (
     STATUS_BRIDGED,
@@ -255,8 +256,6 @@ def _outliers(
         obs = frames[i].signs[si]
         if obs.code not in centres:
             continue
-        from estimator.camera import undistort_px
-
         uv = undistort_px(camera, np.array([obs.center_px]))[0]
         T = np.repeat(r.world_T_cam[i][None], len(codes), axis=0)
         d = np.linalg.norm(project(camera, T, C) - uv, axis=1)
@@ -288,8 +287,6 @@ def gate_measurements(
     Returns:
         (the kept measurements, (M,) True for each gated measurement of ``meas``).
     """
-    from dataclasses import replace
-
     gated = np.zeros(len(meas.frame), bool)
     if gate_px <= 0 or len(meas.frame) == 0:
         return meas, gated
@@ -331,8 +328,6 @@ def estimate_trajectories(
         with the iSAM2 solver also "causal" (each frame's estimate right after
         it was added).
     """
-    import time
-
     s = settings or EstimatorSettings()
     if s.solver not in SOLVERS:
         raise ValueError(f"unknown solver {s.solver!r}; use one of {SOLVERS}")
