@@ -152,26 +152,17 @@ def plot_views(path: str | os.PathLike, data: PlotData) -> Path:
         if sigma is not None and len(sigma) == len(p):
             step = max(1, len(p) // 25)
             sel = slice(None, None, step)
-            top.errorbar(
-                p[sel, 0],
-                p[sel, 1],
-                xerr=SIGMA_BAND * sigma[sel, 0],
-                yerr=SIGMA_BAND * sigma[sel, 1],
-                fmt="none",
-                ecolor=c,
-                alpha=0.5,
-                lw=0.8,
-            )
-            side.errorbar(
-                p[sel, 1],
-                p[sel, 2],
-                xerr=SIGMA_BAND * sigma[sel, 1],
-                yerr=SIGMA_BAND * sigma[sel, 2],
-                fmt="none",
-                ecolor=c,
-                alpha=0.5,
-                lw=0.8,
-            )
+            for ax, (a, b) in ((top, (0, 1)), (side, (1, 2))):
+                ax.errorbar(
+                    p[sel, a],
+                    p[sel, b],
+                    xerr=SIGMA_BAND * sigma[sel, a],
+                    yerr=SIGMA_BAND * sigma[sel, b],
+                    fmt="none",
+                    ecolor=c,
+                    alpha=0.5,
+                    lw=0.8,
+                )
         for k in range(3):
             axes_t[k].plot(t, p[:, k], color=c, lw=1.0, label=name)
             if sigma is not None and len(sigma) == len(p):
