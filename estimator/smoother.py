@@ -267,6 +267,7 @@ class _GraphBuilder:
             self._imu_params = p
 
     def measurement_ids(self, i: int) -> np.ndarray:
+        """Indices into the measurements of frame i's keypoints."""
         return self._order[self._starts[i] : self._starts[i + 1]]
 
     def _pixel_noise(self, sigma: float):
@@ -311,7 +312,7 @@ class _GraphBuilder:
         px, noise, lm = self._meas_px, self._meas_noise, self._meas_lm
         keys = self._lm_keys if lm_keys is None else lm_keys
         make = gtsam.GenericProjectionFactorCal3_S2
-        ids = self._order[self._starts[i] : self._starts[i + 1]].tolist()
+        ids = self.measurement_ids(i).tolist()
         add = graph.add
         for k in ids:
             add(make(px[k], noise[k], xi, keys[lm[k]], cal))
