@@ -365,9 +365,7 @@ class _GraphBuilder:
             )
 
 
-def _fill_initial(
-    init: list[np.ndarray | None], stamps: np.ndarray, default: np.ndarray
-) -> np.ndarray:
+def _fill_initial(init: list[np.ndarray | None], default: np.ndarray) -> np.ndarray:
     """Initial poses: given ones kept, gaps held from the nearest earlier (else later) pose."""
     n = len(init)
     out = np.empty((n, 4, 4))
@@ -444,7 +442,7 @@ def smooth_batch(
     t0 = time.perf_counter()
     n = meas.n_frames
     b = _GraphBuilder(meas, stamps_s, camera, s)
-    init = _fill_initial(init_world_T_cam, stamps_s, default_world_T_cam)
+    init = _fill_initial(init_world_T_cam, default_world_T_cam)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for j in range(len(meas.landmark_code)):
