@@ -34,6 +34,7 @@ STAGES = (
 def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
     """The simulated flight in ``work/flight`` (simulated once per size)."""
     from maps.loader import bundled_map_path, load_map
+    from signpose.fileio import atomic_write
     from signpose.simulate import SimSettings, simulate, simulated_camera
 
     stamp = work / "flight" / "bench.json"
@@ -45,7 +46,8 @@ def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
     t0 = time.perf_counter()
     sim = simulate(load_map(bundled_map_path()), work / "flight", settings, progress=not quiet)
     elapsed = time.perf_counter() - t0
-    stamp.write_text(json.dumps(key))
+    with atomic_write(stamp) as f:
+        json.dump(key, f)
     return sim.frames_path, sim.groundtruth_path, sim.camera, elapsed
 
 
@@ -59,9 +61,12 @@ def _cpu_s() -> float:
 
 def result_estimator_timing(run_dir: Path) -> dict:
     """The estimator's own split (baseline, pnp, smoothed, sigmas) from report.json."""
+    from estimator.results_io import read_report
+    from signpose.errors import InputError
+
     try:
-        return json.loads((run_dir / "report.json").read_text()).get("timing_s", {})
-    except (OSError, ValueError):
+        return read_report(run_dir / "report.json").get("timing_s", {})
+    except InputError:
         return {}
 
 
@@ -86,9 +91,10 @@ def main(argv: list[str] | None = None) -> int:
     from estimator.estimate import EstimatorSettings
     from estimator.smoother import SmootherSettings
     from maps.loader import bundled_map_path, load_map
+    from signpose.fileio import atomic_write, ensure_dir
     from signpose.pipeline import ObserveSettings, RunSettings, run
 
-    args.work.mkdir(parents=True, exist_ok=True)
+    ensure_dir(args.work)
     video, gt, camera, sim_s = _flight(args.work, args.frames, args.width, args.height, args.quiet)
     settings = RunSettings(
         observe=ObserveSettings(tracking=not args.no_tracking),
@@ -154,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
             "cpu_count": os.cpu_count(),
             "python": platform.python_version(),
         }
-        args.json.write_text(json.dumps(data, indent=2) + "\n")
+        with atomic_write(args.json) as f:
+            f.write(json.dumps(data, indent=2) + "\n")
     return 0
 
 
