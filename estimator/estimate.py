@@ -250,13 +250,17 @@ def _outliers(
     centres = {sign.code: sign.center_m for sign in sign_map.signs}
     codes = list(centres)
     C = np.array([centres[c] for c in codes])
-    suspects = {(int(meas.frame[m]), int(meas.sign_index[m])) for m in down}
+    suspects = sorted(
+        (i, si)
+        for i, si in {(int(meas.frame[m]), int(meas.sign_index[m])) for m in down}
+        if frames[i].signs[si].code in centres
+    )
+    # Every suspect's centre undistorted in one call.
+    raw = np.array([frames[i].signs[si].center_px for i, si in suspects], dtype=float)
+    centre_uv = undistort_px(camera, raw.reshape(-1, 2))
     mis = []
-    for i, si in sorted(suspects):
+    for (i, si), uv in zip(suspects, centre_uv, strict=True):
         obs = frames[i].signs[si]
-        if obs.code not in centres:
-            continue
-        uv = undistort_px(camera, np.array([obs.center_px]))[0]
         T = np.repeat(r.world_T_cam[i][None], len(codes), axis=0)
         d = np.linalg.norm(project(camera, T, C) - uv, axis=1)
         own = d[codes.index(obs.code)]
