@@ -7,6 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from signpose.cli import add_quiet
+from signpose.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -62,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     smoother = settings.smoother
     if args.huber is not None:
         if not args.huber > 0:
-            raise _bad("--huber must be > 0")
+            raise InputError("--huber must be > 0")
         smoother = replace(smoother, huber_k=args.huber)
     if args.motion is not None:
         smoother = replace(smoother, motion=args.motion)
@@ -81,9 +82,3 @@ def run(args: argparse.Namespace) -> int:
             print(f"{name}: {int(m.valid.sum())}/{len(m.valid)} frames posed")
         print(f"wrote {', '.join(str(p) for p in written)}")
     return 0
-
-
-def _bad(msg: str):
-    from signpose.errors import InputError
-
-    return InputError(msg)
