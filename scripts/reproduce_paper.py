@@ -33,7 +33,7 @@ from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
-from signpose.fileio import atomic_write, ensure_dir
+from signpose.fileio import atomic_path, atomic_write, ensure_dir
 
 REPO = Path(__file__).resolve().parent.parent
 SCRIPTS = REPO / "scripts"
@@ -213,7 +213,7 @@ def run_step(step: Step, work: Path, quick: bool, timeout_s: float) -> StepResul
         return res
     json_path = work / f"{step.name}.json"
     step_work = work / step.name
-    step_work.mkdir(parents=True, exist_ok=True)
+    ensure_dir(step_work)
     raw = step.common + (step.quick if quick else step.full)
     raw = tuple(a.format(json=json_path, work=step_work) for a in raw)
     argv = _build_args(raw, _supported_flags(script))
@@ -403,7 +403,6 @@ def make_fig13(work: Path, fig_path: Path) -> dict:
 
     from estimator.metrics import compute_metrics
     from estimator.tum import read_tum
-    from signpose.fileio import atomic_path
 
     run_dir, flight_dir = _pipeline_dirs(work)
     gt = read_tum(flight_dir / "groundtruth.tum")
@@ -1482,7 +1481,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.report_only and args.work is None:
         ap.error("--report-only needs the --work folder of an earlier run")
     work = args.work or Path(tempfile.mkdtemp(prefix="signpose-reproduce-"))
-    work.mkdir(parents=True, exist_ok=True)
+    ensure_dir(work)
     work = work.resolve()
     timeout = args.step_timeout or (300.0 if args.quick else 1500.0)
     print(f"work folder: {work}", flush=True)
