@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from frontend.observations import SignObservation, read_observations
+from frontend.observations import FrameObservations, SignObservation, read_observations
 from maps.loader import bundled_map_path, load_map
 from signpose import mcap_io, pipeline
 from signpose.inputs import open_source
@@ -125,6 +126,17 @@ def test_ctrl_c_keeps_complete_frames(tiny_flight, tmp_path):
     frames = read_observations(out)
     assert [f.frame for f in frames] == [0, 1, 2, 3, 4]
     assert [p.name for p in tmp_path.iterdir()] == ["obs.jsonl"]
+
+
+def test_observation_stream_gets_the_usual_file_mode(tmp_path):
+    """observations.jsonl is readable like every other output (not mkstemp's 0600)."""
+    stream = pipeline.ObservationStream(tmp_path / "obs.jsonl")
+    stream.append(FrameObservations(0, 0, (8, 6), ()))
+    path = stream.finish()
+    mask = os.umask(0)
+    os.umask(mask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~mask
+    assert len(read_observations(path)) == 1
 
 
 def test_run_writes_everything(tiny_flight, tmp_path):
