@@ -105,23 +105,6 @@ class _Correspondences:
     px: np.ndarray  # (N, 2) undistorted pixels
 
 
-# MapSign.keypoints_world() rebuilds the sign's geometry on every call (~0.5 ms
-# per sign, most of the per-frame time on a 10-sign map); signs are frozen, so
-# their keypoints are cached, keyed by identity (the value holds the sign so
-# its id cannot be reused while cached).
-_KEYPOINTS_CACHE: dict[int, tuple[object, dict[str, np.ndarray]]] = {}
-
-
-def _keypoints_world(sign) -> dict[str, np.ndarray]:
-    hit = _KEYPOINTS_CACHE.get(id(sign))
-    if hit is None or hit[0] is not sign:
-        if len(_KEYPOINTS_CACHE) > 4096:
-            _KEYPOINTS_CACHE.clear()
-        hit = (sign, sign.keypoints_world())
-        _KEYPOINTS_CACHE[id(sign)] = hit
-    return hit[1]
-
-
 def _correspondences(
     frame: FrameObservations, sign_map: SignMap, camera: CameraModel, all_keypoints: bool
 ) -> _Correspondences:
@@ -131,7 +114,7 @@ def _correspondences(
         sign = sign_map.sign(obs.code)
         if sign is None:  # robustness rule 1: decoded codes absent from the map
             continue
-        kw = _keypoints_world(sign)
+        kw = sign.keypoints_world()
         wanted = kw if all_keypoints else {"center": kw["center"]}
         for name, X in wanted.items():
             if name in obs.keypoints_px:

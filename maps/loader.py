@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from importlib import resources
 from pathlib import Path
 
@@ -60,18 +61,28 @@ class MapSign:
         return T
 
     def keypoints_world(self) -> dict[str, np.ndarray]:
-        """Named keypoints (3,) in the world frame [m].
+        """Named keypoints (3,) in the world frame [m] (read-only arrays).
 
         A centre-only sign gives only ``center``; an oriented sign gives every
         keypoint that ``frontend.sign.sign_keypoints`` defines for its code.
         """
+        return dict(self._keypoints_world)
+
+    @cached_property
+    def _keypoints_world(self) -> dict[str, np.ndarray]:
+        # Computed once per sign: building the sign's geometry costs about
+        # 0.5 ms, and the per-frame solvers ask for it for every observed sign.
         if not self.oriented:
-            return {"center": self.center_m.copy()}
-        R = self.world_R_sign()
-        return {
-            name: self.center_m + R @ p
-            for name, p in sign_keypoints(self.code, self.diameter_m).items()
-        }
+            points = {"center": self.center_m.copy()}
+        else:
+            R = self.world_R_sign()
+            points = {
+                name: self.center_m + R @ p
+                for name, p in sign_keypoints(self.code, self.diameter_m).items()
+            }
+        for p in points.values():
+            p.flags.writeable = False
+        return points
 
 
 @dataclass(frozen=True)
