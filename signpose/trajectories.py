@@ -39,7 +39,7 @@ def _site_frame(sign_map: SignMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
         facing = np.array([0.0, 1.0, 0.0])
     facing /= np.linalg.norm(facing)
     z_up = np.array([0.0, 0.0, 1.0])
-    right = np.cross(z_up, facing)  # horizontal, to the viewer's left-to-right... see below
+    right = np.cross(z_up, facing)  # horizontal: the right of a viewer facing the signs
     right /= np.linalg.norm(right)
     return center, facing, right, z_up
 
@@ -126,7 +126,7 @@ def make_trajectory(
     for i in range(n_frames):
         R = look_at(pos[i], target[i], up)
         ang = amps[:, None] * np.sin(2 * np.pi * freqs * t[i] + phases)
-        yaw, pitch, roll = ang.sum(axis=1) / 3.0 * np.array([1.0, 1.0, 1.0])
+        yaw, pitch, roll = ang.sum(axis=1) / 3.0
         # Yaw about world up, pitch about the camera x axis, roll about the optical axis.
         R = (
             _rot(up, yaw)
