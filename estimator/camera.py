@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 import yaml
 
-from signpose.errors import InputError
-from signpose.fileio import atomic_write
+from signpose.core.errors import InputError
+from signpose.core.fileio import atomic_write
 
 PLUMB_BOB = "plumb_bob"
 EQUIDISTANT = "equidistant"

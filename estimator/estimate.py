@@ -14,10 +14,9 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
-
-from estimator.camera import CameraModel, undistort_px
-from estimator.perframe import FramePose, PerFrameSettings, run_per_frame
-from estimator.smoother import (
+from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.estimator.perframe import FramePose, PerFrameSettings, run_per_frame
+from signpose.estimator.smoother import (
     STATUS_BRIDGED,
     STATUS_OK,
     Measurements,
@@ -30,9 +29,10 @@ from estimator.smoother import (
     smooth_batch,
     smooth_isam2,
 )
-from frontend.observations import FrameObservations
-from maps.loader import SignMap
-from signpose.errors import InputError
+from signpose.frontend.observations import FrameObservations
+from signpose.maps.loader import SignMap
+
+from signpose.core.errors import InputError
 
 log = logging.getLogger(__name__)
 

@@ -16,10 +16,9 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-
-from estimator.camera import CameraModel, undistort_px
-from frontend.observations import FrameObservations
-from maps.loader import SignMap
+from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.frontend.observations import FrameObservations
+from signpose.maps.loader import SignMap
 
 # Reasons a frame gets no pose (also used as status strings in the outputs).
 REASON_FEW_SIGNS = "fewer than 4 signs"

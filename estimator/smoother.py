@@ -31,10 +31,9 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-
-from estimator.camera import CameraModel, undistort_px
-from frontend.observations import FrameObservations
-from maps.loader import SignMap
+from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.frontend.observations import FrameObservations
+from signpose.maps.loader import SignMap
 
 log = logging.getLogger(__name__)
 

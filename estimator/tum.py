@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from signpose.errors import InputError
-from signpose.fileio import atomic_write
+from signpose.core.errors import InputError
+from signpose.core.fileio import atomic_write
 
 
 @dataclass(frozen=True)

@@ -56,8 +56,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-
-from frontend.homography import (
+from signpose.frontend.homography import (
     Ellipse,
     affine_design,
     disc_ellipse,
@@ -66,7 +65,7 @@ from frontend.homography import (
     polygon_centroids,
     prepare_source,
 )
-from frontend.sign import ALL_CODES, N_BITS, sign_shape, slot_angle_rad
+from signpose.frontend.sign import ALL_CODES, N_BITS, sign_shape, slot_angle_rad
 
 REASONS: tuple[str, ...] = (
     "ok",

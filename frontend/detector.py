@@ -39,9 +39,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from signpose.frontend.observations import FrameObservations, SignObservation
 
-from frontend.observations import FrameObservations, SignObservation
-from signpose.errors import InputError
+from signpose.core.errors import InputError
 
 WINDOW_PX = 24
 MODES = ("fast", "paper")
@@ -49,7 +49,7 @@ MODES = ("fast", "paper")
 
 def bundled_cascade_path() -> Path:
     """Path of the trained cascade shipped as package data."""
-    return Path(str(resources.files("frontend") / "models" / "signs_cascade.xml"))
+    return Path(str(resources.files("signpose.frontend") / "models" / "signs_cascade.xml"))
 
 
 @dataclass(frozen=True)
@@ -475,7 +475,7 @@ class SignDetector:
                 for (x, y, w, h), n in zip(regions, counts, strict=True)
             ]
             return dets, 0
-        from frontend.decoder import decode_region
+        from signpose.frontend.decoder import decode_region
 
         best: dict[str, Detection] = {}
         undecoded = 0

@@ -20,9 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from frontend.sign import ALL_CODES, KEYPOINT_NAMES
-from signpose.errors import InputError
-from signpose.fileio import atomic_write
+from signpose.frontend.sign import ALL_CODES, KEYPOINT_NAMES
+
+from signpose.core.errors import InputError
+from signpose.core.fileio import atomic_write
 
 DEFAULT_SIGMA_PX = 0.5
 

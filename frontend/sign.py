@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from signpose.errors import InputError
+from signpose.core.errors import InputError
 
 ALL_CODES: tuple[str, ...] = tuple(format(i, "04b") for i in range(16))
 PAPER_CODES: tuple[str, ...] = (

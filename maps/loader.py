@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from signpose.frontend.sign import ALL_CODES, sign_keypoints
 
-from frontend.sign import ALL_CODES, sign_keypoints
-from signpose.errors import InputError
-from signpose.fileio import atomic_write
+from signpose.core.errors import InputError
+from signpose.core.fileio import atomic_write
 
 ORTHOGONALITY_TOL_DEG = 1.0
 
@@ -116,7 +116,7 @@ class SignMap:
 
 def bundled_map_path(name: str = "demo_pylon") -> Path:
     """Path of a map shipped with the package (``maps/<name>.yaml``)."""
-    return Path(str(resources.files("maps").joinpath(f"{name}.yaml")))
+    return Path(str(resources.files("signpose.maps").joinpath(f"{name}.yaml")))
 
 
 def _vector(path: str, where: str, field: str, value, *, nonzero: bool) -> np.ndarray:

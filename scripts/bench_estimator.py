@@ -22,10 +22,9 @@ import sys
 import time
 
 import numpy as np
-
-from estimator.camera import pinhole_camera
-from estimator.perframe import run_per_frame
-from estimator.smoother import (
+from signpose.estimator.camera import pinhole_camera
+from signpose.estimator.perframe import run_per_frame
+from signpose.estimator.smoother import (
     MOTION_MODELS,
     SmootherSettings,
     collect_measurements,
@@ -33,9 +32,10 @@ from estimator.smoother import (
     smooth_batch,
     smooth_isam2,
 )
-from estimator.synthetic import SyntheticSettings, paper_like_frames
-from maps.loader import bundled_map_path, load_map
-from signpose.fileio import atomic_write
+from signpose.maps.loader import bundled_map_path, load_map
+
+from signpose.core.fileio import atomic_write
+from signpose.sim.observations import SyntheticSettings, paper_like_frames
 
 
 def main(argv=None) -> int:

@@ -25,11 +25,11 @@ import time
 from pathlib import Path
 
 import cv2
+from signpose.frontend.detector import SignDetector
+from signpose.maps.loader import bundled_map_path, load_map
 
-from frontend.detector import SignDetector
-from maps.loader import bundled_map_path, load_map
-from signpose.fileio import atomic_write
-from signpose.simulate import SimSettings, read_boxes, simulate
+from signpose.core.fileio import atomic_write
+from signpose.sim.flight import SimSettings, read_boxes, simulate
 
 BENCH_SEED = 5151
 

@@ -33,9 +33,10 @@ STAGES = (
 
 def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
     """The simulated flight in ``work/flight`` (simulated once per size)."""
-    from maps.loader import bundled_map_path, load_map
-    from signpose.fileio import atomic_write
-    from signpose.simulate import SimSettings, simulate, simulated_camera
+    from signpose.maps.loader import bundled_map_path, load_map
+
+    from signpose.core.fileio import atomic_write
+    from signpose.sim.flight import SimSettings, simulate, simulated_camera
 
     stamp = work / "flight" / "bench.json"
     settings = SimSettings(frames=frames, width=width, height=height)
@@ -61,8 +62,8 @@ def _cpu_s() -> float:
 
 def result_estimator_timing(run_dir: Path) -> dict:
     """The estimator's own split (baseline, pnp, smoothed, sigmas) from report.json."""
-    from estimator.results_io import read_report
-    from signpose.errors import InputError
+    from signpose.core.errors import InputError
+    from signpose.io.results import read_report
 
     try:
         return read_report(run_dir / "report.json").get("timing_s", {})
@@ -88,10 +89,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
 
-    from estimator.estimate import EstimatorSettings
-    from estimator.smoother import SmootherSettings
-    from maps.loader import bundled_map_path, load_map
-    from signpose.fileio import atomic_write, ensure_dir
+    from signpose.estimator.estimate import EstimatorSettings
+    from signpose.estimator.smoother import SmootherSettings
+    from signpose.maps.loader import bundled_map_path, load_map
+
+    from signpose.core.fileio import atomic_write, ensure_dir
     from signpose.pipeline import ObserveSettings, RunSettings, run
 
     ensure_dir(args.work)

@@ -18,9 +18,9 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import cv2  # noqa: E402
+from signpose.maps.loader import bundled_map_path, load_map  # noqa: E402
 
-from maps.loader import bundled_map_path, load_map  # noqa: E402
-from signpose.simulate import FORMATS, SimSettings, simulate  # noqa: E402
+from signpose.sim.flight import FORMATS, SimSettings, simulate  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,13 +33,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from signpose.frontend.decoder import DecoderSettings, decode_roi
+from signpose.frontend.homography import apply_homography, disc_ellipse, polygon_centroids
+from signpose.frontend.sign import ALL_CODES, sign_shape
 from tqdm import tqdm
 
-from frontend.decoder import DecoderSettings, decode_roi
-from frontend.homography import apply_homography, disc_ellipse, polygon_centroids
-from frontend.sign import ALL_CODES, sign_shape
-from frontend.synth import render_crop
-from signpose.fileio import atomic_write
+from signpose.core.fileio import atomic_write
+from signpose.sim.crops import render_crop
 
 BACKGROUND_WEIGHTS = {
     "plain": 0.2,

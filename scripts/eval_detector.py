@@ -30,11 +30,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from signpose.frontend.detector import DetectorSettings, SignDetector
+from signpose.maps.loader import bundled_map_path, load_map
 
-from frontend.detector import DetectorSettings, SignDetector
-from maps.loader import bundled_map_path, load_map
-from signpose.fileio import atomic_write
-from signpose.simulate import SimSettings, read_boxes, simulate
+from signpose.core.fileio import atomic_write
+from signpose.sim.flight import SimSettings, read_boxes, simulate
 
 BINS = ((18, 30), (30, 60), (60, 200))
 # Held-out flights: (trajectory, distance [m], share of the frames). Far, middle
@@ -69,7 +69,7 @@ def _empty() -> dict:
 
 def decodable(gray: np.ndarray, truth: dict) -> set[str]:
     """Codes the decoder reads from the true boxes (the ceiling for any detector)."""
-    from frontend.decoder import decode_region
+    from signpose.frontend.decoder import decode_region
 
     return {
         s["code"]

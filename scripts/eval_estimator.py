@@ -25,22 +25,22 @@ import sys
 import time
 
 import numpy as np
-
-from estimator.camera import pinhole_camera
-from estimator.estimate import EstimatorSettings, gate_measurements
-from estimator.metrics import Metrics, compute_metrics, format_table
-from estimator.perframe import PerFrameSettings, run_per_frame
-from estimator.smoother import (
+from signpose.estimator.camera import pinhole_camera
+from signpose.estimator.estimate import EstimatorSettings, gate_measurements
+from signpose.estimator.metrics import Metrics, compute_metrics, format_table
+from signpose.estimator.perframe import PerFrameSettings, run_per_frame
+from signpose.estimator.smoother import (
     SmootherSettings,
     collect_measurements,
     default_pose,
     smooth_batch,
     smooth_isam2,
 )
-from estimator.synthetic import SyntheticSettings, flatten_map, paper_like_frames
-from estimator.tum import Trajectory
-from maps.loader import bundled_map_path, load_map
-from signpose.fileio import atomic_write
+from signpose.estimator.tum import Trajectory
+from signpose.maps.loader import bundled_map_path, load_map
+
+from signpose.core.fileio import atomic_write
+from signpose.sim.observations import SyntheticSettings, flatten_map, paper_like_frames
 
 FAULTS = {"clean": (0.0, 0.0), "faults": (0.05, 0.02)}
 

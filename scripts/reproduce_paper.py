@@ -33,7 +33,7 @@ from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
-from signpose.fileio import atomic_path, atomic_write, ensure_dir
+from signpose.core.fileio import atomic_path, atomic_write, ensure_dir
 
 REPO = Path(__file__).resolve().parent.parent
 SCRIPTS = REPO / "scripts"
@@ -400,9 +400,8 @@ def make_fig13(work: Path, fig_path: Path) -> dict:
     import numpy as np
     from matplotlib.colors import LinearSegmentedColormap
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
-
-    from estimator.metrics import compute_metrics
-    from estimator.tum import read_tum
+    from signpose.estimator.metrics import compute_metrics
+    from signpose.estimator.tum import read_tum
 
     run_dir, flight_dir = _pipeline_dirs(work)
     gt = read_tum(flight_dir / "groundtruth.tum")

@@ -24,8 +24,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from signpose.errors import InputError, SignposeError
-from signpose.fileio import atomic_write, ensure_dir
+from signpose.core.errors import InputError, SignposeError
+from signpose.core.fileio import atomic_write, ensure_dir
 
 log = logging.getLogger(__name__)
 
@@ -118,8 +118,8 @@ def _beside(input_path: Path, name: str) -> str:
 
 def run_flight(job: FlightJob) -> FlightOutcome:
     """Run one flight; never raises (failures are outcomes). Writes the done marker last."""
-    from estimator.camera import load_camera
-    from maps.loader import load_map
+    from signpose.estimator.camera import load_camera
+    from signpose.maps.loader import load_map
     from signpose.pipeline import RunSettings, run
 
     t0 = time.perf_counter()
@@ -272,7 +272,7 @@ def run_batch(
     """
     if not inputs:
         raise InputError("no flights given")
-    from maps.loader import load_map
+    from signpose.maps.loader import load_map
 
     load_map(map_path)  # fail once, early, on a bad map
     out = ensure_dir(out_dir)

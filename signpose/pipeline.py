@@ -30,12 +30,12 @@ from typing import IO, Any
 import numpy as np
 from tqdm import tqdm
 
-from estimator.camera import CameraModel, check_image_size, pixel_from_world_point
-from frontend.observations import FrameObservations, append_observation
-from maps.loader import SignMap
-from signpose.errors import InputError, OutputError
-from signpose.fileio import atomic_write, ensure_dir
-from signpose.inputs import FrameSource, open_source, prefetch
+from signpose.core.errors import InputError, OutputError
+from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.estimator.camera import CameraModel, check_image_size, pixel_from_world_point
+from signpose.frontend.observations import FrameObservations, append_observation
+from signpose.io.sources import FrameSource, open_source, prefetch
+from signpose.maps.loader import SignMap
 
 log = logging.getLogger(__name__)
 
@@ -243,7 +243,7 @@ def _extrapolate(prev: np.ndarray, prev2: np.ndarray | None, steps: int = 1) -> 
 
 
 def _no_prefetch(source: FrameSource):
-    from signpose.inputs import PrefetchedFrame
+    from signpose.io.sources import PrefetchedFrame
 
     for frame in source:
         t0 = time.perf_counter()
@@ -274,14 +274,14 @@ def _to_observations(
     """
     if isinstance(result, tuple):
         return FrameObservations(frame, stamp_ns, image_size, result)
-    from frontend.detector import to_frame_observations
+    from signpose.frontend.detector import to_frame_observations
 
     return to_frame_observations(result, frame, stamp_ns, image_size)
 
 
 def make_detector(settings: ObserveSettings):
     """The frontend's detector (``frontend.detector.SignDetector``)."""
-    from frontend.detector import SignDetector
+    from signpose.frontend.detector import SignDetector
 
     return SignDetector(settings.cascade_path or None)
 
@@ -320,12 +320,12 @@ def observe(
     elif sign_map is not None:
         codes = tuple(sign_map.codes)
     else:
-        from frontend.sign import ALL_CODES
+        from signpose.frontend.sign import ALL_CODES
 
         codes = tuple(ALL_CODES)
     tracking = s.tracking and sign_map is not None and camera is not None
     if tracking:
-        from estimator.perframe import solve_frame_pnp
+        from signpose.estimator.perframe import solve_frame_pnp
     timing = dict.fromkeys(("decode_video", "wait_video", "detect", "decode", "track"), 0.0)
     stream = ObservationStream(out_path) if out_path is not None else None
     frames: list[FrameObservations] = []
@@ -488,7 +488,7 @@ def check_codes_seen(frames: tuple[FrameObservations, ...], sign_map: SignMap, w
 
 def _trajectories(estimate) -> tuple[dict, dict]:
     """method -> Trajectory (NaN where no pose), method -> (N, 3) sigma [m]."""
-    from estimator.tum import Trajectory
+    from signpose.estimator.tum import Trajectory
 
     trajs, sigmas = {}, {}
     for name, m in estimate.methods.items():
@@ -507,7 +507,7 @@ def _trajectories(estimate) -> tuple[dict, dict]:
 
 
 def _valid_only(traj):
-    from estimator.tum import Trajectory
+    from signpose.estimator.tum import Trajectory
 
     ok = np.all(np.isfinite(traj.world_t_cam), axis=1)
     return Trajectory(traj.stamps_s[ok], traj.world_t_cam[ok], traj.quat_xyzw[ok])
@@ -545,8 +545,8 @@ def run(
     Returns:
         The RunResult; ``report.json`` in ``out_dir`` holds the same numbers.
     """
-    from estimator.estimate import EstimatorSettings, estimate_trajectories
-    from estimator.tum import read_tum
+    from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
+    from signpose.estimator.tum import read_tum
 
     s = settings or RunSettings()
     t_start = time.perf_counter()
@@ -584,7 +584,7 @@ def run(
         seen = np.array([sum(o.code in map_codes for o in f.signs) for f in obs.frames])
         files += write_plots(out, PlotData(sign_map, trajs, sigmas, gt, stamps, seen))
     if s.mcap:
-        from signpose import mcap_io
+        from signpose.io import mcap as mcap_io
 
         images = None
         if s.with_images:
@@ -658,21 +658,21 @@ def position_rmse(traj, gt) -> float:
 
 def _write_estimator_outputs(out: Path, estimate) -> list[Path]:
     """The estimator's files: ``<method>.tum``, ``trajectory.csv``, ``report.json``."""
-    from estimator.results_io import write_outputs
+    from signpose.io.results import write_outputs
 
     return [Path(p) for p in write_outputs(out, estimate)]
 
 
 def _compare(out: Path, gt_path: Path) -> tuple[dict, str]:
     """The estimator's comparison (added to report.json): (method -> metrics, table)."""
-    from estimator.results_io import compare_dir, metrics_table
+    from signpose.io.results import compare_dir, metrics_table
 
     return compare_dir(out, gt_path), metrics_table(out)
 
 
 def _add_to_report(path: Path, key: str, section: dict) -> None:
     """Add ``section`` under ``key`` to the estimator's report.json (its module writes it)."""
-    from estimator.results_io import read_report, write_json
+    from signpose.io.results import read_report, write_json
 
     report = read_report(path) if path.exists() else {}
     report[key] = section
@@ -703,8 +703,8 @@ def run_demo(
     Results (observations, trajectories, comparison, plots, result.mcap) go
     into ``out_dir`` itself.
     """
-    from maps.loader import bundled_map_path, load_map
-    from signpose.simulate import SimSettings, simulate
+    from signpose.maps.loader import bundled_map_path, load_map
+    from signpose.sim.flight import SimSettings, simulate
 
     out = ensure_dir(out_dir)
     sign_map = load_map(bundled_map_path())

@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
-from maps.loader import SignMap, bundled_map_path, load_map
+from signpose.maps.loader import SignMap, bundled_map_path, load_map
 
 
 @pytest.fixture
@@ -52,7 +51,7 @@ def write_yaml(path: Path, data) -> Path:
 
 def clean_sim_options():
     """Render options for geometry checks: no background, noise, blur, lighting or JPEG."""
-    from frontend.render import RenderOptions
+    from signpose.sim.render import RenderOptions
 
     return RenderOptions(
         blur=False, noise_sigma=0.0, jpeg_quality=None, background=False, lighting=False
@@ -101,8 +100,9 @@ def estimator_scene(
     ``flat`` puts every sign on the best-fit plane of the demo map (the
     paper's planar assumption), so the baseline is exact without noise.
     """
-    from estimator.camera import pinhole_camera
-    from estimator.synthetic import SyntheticSettings, flatten_map, paper_like_frames
+    from signpose.estimator.camera import pinhole_camera
+
+    from signpose.sim.observations import SyntheticSettings, flatten_map, paper_like_frames
 
     sign_map = load_map(bundled_map_path())
     if flat:

@@ -6,12 +6,12 @@ import csv
 import shutil
 
 import pytest
+from signpose.maps.loader import bundled_map_path
 from test_pipeline import TruthDetector, simulate_tiny, truth_detector
 
-from maps.loader import bundled_map_path
 from signpose import batch, pipeline
 from signpose.cli import main
-from signpose.errors import InputError
+from signpose.core.errors import InputError
 
 MAP = str(bundled_map_path())
 
@@ -131,7 +131,7 @@ def test_scheduler_without_dask_says_how_to_install(monkeypatch, tmp_path):
 
 
 def test_demo_end_to_end(monkeypatch, tmp_path, capsys):
-    from signpose.simulate import read_boxes
+    from signpose.sim.flight import read_boxes
 
     real_observe = pipeline.observe
 

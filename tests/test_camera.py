@@ -4,8 +4,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-
-from estimator.camera import (
+from signpose.estimator.camera import (
     EQUIDISTANT,
     PLUMB_BOB,
     CameraModel,
@@ -17,7 +16,8 @@ from estimator.camera import (
     undistort_px,
     write_camera_info,
 )
-from signpose.errors import InputError
+
+from signpose.core.errors import InputError
 
 K = np.array([[1210.5, 0.0, 955.25], [0.0, 1208.75, 541.5], [0.0, 0.0, 1.0]])
 CAMERAS = {

@@ -7,13 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from signpose.estimator.camera import pinhole_camera, write_camera_info
+from signpose.frontend.observations import read_observations
+from signpose.maps.loader import bundled_map_path
 from test_pipeline import simulate_tiny, truth_detector
 
-from estimator.camera import pinhole_camera, write_camera_info
-from frontend.observations import read_observations
-from maps.loader import bundled_map_path
-from signpose import mcap_io, pipeline
+from signpose import pipeline
 from signpose.cli import main
+from signpose.io import mcap as mcap_io
 
 MAP = str(bundled_map_path())
 
@@ -60,7 +61,7 @@ def test_run_ok(flight, replay, tmp_path, capsys):
 def test_truncated_video(flight, replay, tmp_path, capsys):
     import cv2
 
-    from signpose.inputs import open_source
+    from signpose.io.sources import open_source
 
     # A streamable container, cut in half.
     full = tmp_path / "full.avi"
@@ -87,7 +88,7 @@ def test_truncated_video(flight, replay, tmp_path, capsys):
 
 
 def test_truncated_mcap(tmp_path, replay, flight, capsys):
-    from signpose.inputs import open_source
+    from signpose.io.sources import open_source
 
     path = tmp_path / "flight.mcap"
     with mcap_io.McapFrameWriter(path, flight.camera, chunk_size=8192) as w:

@@ -6,11 +6,11 @@ import math
 import cv2
 import numpy as np
 import pytest
+from signpose.frontend.decoder import REASONS, DecoderSettings, decode_region, decode_roi
+from signpose.frontend.sign import ALL_CODES, PAPER_CODES
 
-from frontend.decoder import REASONS, DecoderSettings, decode_region, decode_roi
-from frontend.sign import ALL_CODES, PAPER_CODES
-from frontend.synth import render_background, render_crop
 from signpose.cli import main as cli_main
+from signpose.sim.crops import render_background, render_crop
 
 # (sign_px, rotation_deg, tilt_deg, blur_px, background)
 VARIANTS = (
@@ -177,7 +177,7 @@ def test_cli_decode_prints_json_lines(tmp_path, capsys):
 
 def test_prepared_fits_match_plain_fits():
     """The decoder's cached fits (prepared source, affine design) equal the plain ones."""
-    from frontend.homography import (
+    from signpose.frontend.homography import (
         affine_design,
         disc_ellipse,
         ellipse_from_conic,

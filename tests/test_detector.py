@@ -7,8 +7,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-
-from frontend.detector import (
+from signpose.frontend.detector import (
     Detection,
     DetectionResult,
     DetectorSettings,
@@ -17,7 +16,7 @@ from frontend.detector import (
     paper_merge,
     to_frame_observations,
 )
-from maps.loader import bundled_map_path, load_map
+from signpose.maps.loader import bundled_map_path, load_map
 
 
 def test_paper_merge_same_size_needs_two_windows_within_half_a_window():
@@ -64,7 +63,7 @@ def test_group_merge_wraps_opencv():
 @pytest.fixture(scope="module")
 def frame(tmp_path_factory):
     """One simulated 1080p frame of the demo pylon and its truth."""
-    from signpose.simulate import SimSettings, read_boxes, simulate
+    from signpose.sim.flight import SimSettings, read_boxes, simulate
 
     out = tmp_path_factory.mktemp("sim")
     simulate(
@@ -108,7 +107,7 @@ def test_bundled_model_finds_every_sign_region_of_a_rendered_frame(frame, mode):
 
 
 def _decodable(gray: np.ndarray, truth: dict) -> int:
-    from frontend.decoder import decode_region
+    from signpose.frontend.decoder import decode_region
 
     return sum(decode_region(gray, s["bbox_px"]).code == s["code"] for s in truth["signs"])
 

@@ -5,9 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from conftest import estimator_scene
-
-from estimator.estimate import EstimatorSettings, estimate_trajectories
-from estimator.perframe import (
+from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
+from signpose.estimator.perframe import (
     REASON_COLLINEAR,
     REASON_FEW_SIGNS,
     REASON_ONE_SPOT,
@@ -16,10 +15,11 @@ from estimator.perframe import (
     solve_frame_baseline,
     solve_frame_pnp,
 )
-from estimator.smoother import STATUS_BRIDGED, STATUS_OK, SmootherSettings
-from estimator.synthetic import SyntheticSettings, synthesize_observations
-from frontend.observations import FrameObservations
-from maps.loader import MapSign, SignMap, bundled_map_path, load_map
+from signpose.estimator.smoother import STATUS_BRIDGED, STATUS_OK, SmootherSettings
+from signpose.frontend.observations import FrameObservations
+from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map
+
+from signpose.sim.observations import SyntheticSettings, synthesize_observations
 
 
 def _pos_err(poses, gt, valid=None):
@@ -74,9 +74,10 @@ def _line_map(spread: float) -> SignMap:
 
 @pytest.mark.parametrize(("spread", "reason"), [(0.5, REASON_COLLINEAR), (0.001, REASON_ONE_SPOT)])
 def test_degenerate_geometry_gives_reason_and_no_nan(spread, reason, tmp_path):
-    from estimator.camera import pinhole_camera
-    from estimator.results_io import write_outputs
-    from signpose.trajectories import make_trajectory
+    from signpose.estimator.camera import pinhole_camera
+
+    from signpose.io.results import write_outputs
+    from signpose.sim.trajectories import make_trajectory
 
     sign_map = _line_map(spread)
     # A plane-like map gives the trajectory its facing; add a helper sign off the line.
@@ -139,7 +140,7 @@ def test_isam2_final_equals_batch(motion):
 def test_few_signs_get_a_pose_and_empty_frames_are_bridged():
     sign_map, camera, frames, gt, _ = estimator_scene(n_frames=30, sigma_px=0.3, seed=2, flat=False)
     rng = np.random.default_rng(5)
-    from estimator.synthetic import drop_signs
+    from signpose.sim.observations import drop_signs
 
     keep = {5: 1, 6: 2, 7: 3, 8: 1}
     frames = drop_signs(frames, keep, rng)
@@ -204,7 +205,7 @@ def test_synthetic_faults_and_off_image_points():
             for u, v in s.keypoints_px.values():
                 assert 0 <= u <= camera.width - 1 and 0 <= v <= camera.height - 1
     settings = SyntheticSettings(wrong_code_rate=1.0, false_rate=1.0)
-    from estimator.synthetic import paper_like_frames
+    from signpose.sim.observations import paper_like_frames
 
     fr, _, truth = paper_like_frames(sign_map, camera, 3, np.random.default_rng(0), settings)
     assert len(truth.wrong_code) == sum(len(f.signs) for f in frames[:3])
@@ -213,8 +214,8 @@ def test_synthetic_faults_and_off_image_points():
 
 
 def test_gross_outliers_are_gated_and_reported():
-    from estimator.estimate import gate_measurements
-    from estimator.smoother import collect_measurements
+    from signpose.estimator.estimate import gate_measurements
+    from signpose.estimator.smoother import collect_measurements
 
     sign_map, camera, frames, gt, _ = estimator_scene(n_frames=6, sigma_px=0.3, flat=False)
     f = frames[2]
@@ -262,8 +263,9 @@ def test_pnp_warm_start_from_a_distant_prior_does_not_stick_in_a_wrong_minimum(t
     # poses are metres apart, so the previous pose is a poor prior, and the
     # lateral-shift/rotation valley is flat enough in so few pixels that LM from
     # that prior settled 3 m off while fitting within 0.8 px (seen in a batch run).
-    from frontend.observations import SignObservation
-    from signpose.simulate import SimSettings, read_boxes, simulate
+    from signpose.frontend.observations import SignObservation
+
+    from signpose.sim.flight import SimSettings, read_boxes, simulate
 
     sign_map = load_map(bundled_map_path())
     sim = simulate(sign_map, tmp_path, SimSettings(frames=8, width=320, height=240), progress=False)

@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 from conftest import estimator_scene
+from signpose.estimator.camera import pinhole_camera, write_camera_info
+from signpose.estimator.tum import read_tum, write_tum
+from signpose.frontend.observations import write_observations
+from signpose.maps.loader import bundled_map_path
 
-from estimator.camera import pinhole_camera, write_camera_info
-from estimator.results_io import read_trajectory_csv
-from estimator.tum import read_tum, write_tum
-from frontend.observations import write_observations
-from maps.loader import bundled_map_path
 from signpose.cli import main
+from signpose.io.results import read_trajectory_csv
 
 
 @pytest.fixture

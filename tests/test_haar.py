@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from frontend import haar
-from frontend.cascade_xml import read_cascade_xml, write_cascade_xml
+from signpose.training import haar
+from signpose.training.cascade_xml import read_cascade_xml, write_cascade_xml
 
 
 def _rect_sum(win: np.ndarray, x: int, y: int, w: int, h: int) -> float:

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from signpose.estimator.camera import pinhole_camera
 
-from estimator.camera import pinhole_camera
-from signpose.errors import InputError
-from signpose.inputs import FolderSource, VideoSource, check_source_camera, open_source
+from signpose.core.errors import InputError
+from signpose.io.sources import FolderSource, VideoSource, check_source_camera, open_source
 
 
 def _frames(rng: np.random.Generator, n: int, w: int = 96, h: int = 64) -> list[np.ndarray]:
@@ -154,7 +154,7 @@ def test_camera_size_mismatch():
 )
 def test_times_csv_parser(tmp_path_factory, stamps, junk):
     """Valid CSVs come back sorted by time; a corrupted stamp is one InputError naming the line."""
-    from signpose.inputs import _read_times_csv
+    from signpose.io.sources import _read_times_csv
 
     folder = tmp_path_factory.mktemp("csv")
     files = {f"{i}.png": folder / f"{i}.png" for i in range(len(stamps))}

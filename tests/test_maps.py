@@ -8,11 +8,11 @@ import pytest
 from conftest import valid_map_dict, write_yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from signpose.frontend.sign import PAPER_CODES
+from signpose.maps.loader import load_map, parse_map, write_map
 
-from frontend.sign import PAPER_CODES
-from maps.loader import load_map, parse_map, write_map
 from signpose.cli import main
-from signpose.errors import InputError
+from signpose.core.errors import InputError
 
 
 def test_bundled_map_has_the_papers_ten_signs(demo_map):

@@ -7,14 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from signpose.estimator.camera import pinhole_camera
+from signpose.estimator.tum import Trajectory
+from signpose.frontend.observations import FrameObservations, SignObservation
+from signpose.maps.loader import bundled_map_path, load_map
 
-from estimator.camera import pinhole_camera
-from estimator.tum import Trajectory
-from frontend.observations import FrameObservations, SignObservation
-from maps.loader import bundled_map_path, load_map
-from signpose import mcap_io
-from signpose.errors import InputError
-from signpose.inputs import McapSource, open_source
+from signpose.core.errors import InputError
+from signpose.io import mcap as mcap_io
+from signpose.io.sources import McapSource, open_source
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "foxglove-jsonschema"
 

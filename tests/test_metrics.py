@@ -2,9 +2,8 @@
 
 import numpy as np
 from conftest import estimator_scene
-
-from estimator.metrics import associate, compute_metrics, rpe_translation, umeyama_se3
-from estimator.tum import Trajectory
+from signpose.estimator.metrics import associate, compute_metrics, rpe_translation, umeyama_se3
+from signpose.estimator.tum import Trajectory
 
 
 def _line_traj(n: int = 11, step: float = 0.5) -> Trajectory:

@@ -8,11 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from signpose.frontend.observations import FrameObservations, SignObservation, read_observations
+from signpose.maps.loader import bundled_map_path, load_map
 
-from frontend.observations import FrameObservations, SignObservation, read_observations
-from maps.loader import bundled_map_path, load_map
-from signpose import mcap_io, pipeline
-from signpose.inputs import open_source
+from signpose import pipeline
+from signpose.io import mcap as mcap_io
+from signpose.io.sources import open_source
 from signpose.plots import PlotData, plot_errors, write_plots
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -56,14 +57,14 @@ class TruthDetector:
 
 def simulate_tiny(out: Path, frames: int = 16, fmt: str = "mp4", **kw):
     """A small flight (320x240) in front of the bundled pylon."""
-    from signpose.simulate import SimSettings, simulate
+    from signpose.sim.flight import SimSettings, simulate
 
     settings = SimSettings(frames=frames, width=320, height=240, format=fmt, **kw)
     return simulate(load_map(bundled_map_path()), out, settings, progress=False)
 
 
 def truth_detector(sim, **kw) -> TruthDetector:
-    from signpose.simulate import read_boxes
+    from signpose.sim.flight import read_boxes
 
     return TruthDetector(read_boxes(sim.boxes_path), **kw)
 
@@ -97,7 +98,7 @@ def test_observe_streams_and_tracks(tiny_flight, tmp_path):
 
 def test_predictions_match_the_truth(tiny_flight):
     """predict_signs from the true pose lands on the true centres."""
-    from signpose.simulate import read_boxes
+    from signpose.sim.flight import read_boxes
 
     sign_map = load_map(bundled_map_path())
     boxes = read_boxes(tiny_flight.boxes_path)
@@ -175,7 +176,7 @@ def test_run_writes_everything(tiny_flight, tmp_path):
 
 
 def test_map_codes_never_seen(tiny_flight, tmp_path):
-    from maps.loader import parse_map
+    from signpose.maps.loader import parse_map
 
     other = parse_map(
         {
@@ -198,8 +199,9 @@ def test_map_codes_never_seen(tiny_flight, tmp_path):
 
 
 def test_plots_from_fake_data(tmp_path):
-    from estimator.tum import Trajectory
-    from signpose.trajectories import make_trajectory
+    from signpose.estimator.tum import Trajectory
+
+    from signpose.sim.trajectories import make_trajectory
 
     rng = np.random.default_rng(0)
     sign_map = load_map(bundled_map_path())
@@ -251,7 +253,7 @@ def test_run_with_the_real_detector(tmp_path):
 
 
 def simulate_tiny_size(out: Path, frames: int, width: int, height: int):
-    from signpose.simulate import SimSettings, simulate
+    from signpose.sim.flight import SimSettings, simulate
 
     settings = SimSettings(frames=frames, width=width, height=height)
     return simulate(load_map(bundled_map_path()), out, settings, progress=False)

@@ -5,8 +5,7 @@ import xml.etree.ElementTree as ET
 import cv2
 import numpy as np
 import pytest
-
-from frontend.sign import (
+from signpose.frontend.sign import (
     ALL_CODES,
     PAPER_CODES,
     all_slot_keypoints,
@@ -18,8 +17,9 @@ from frontend.sign import (
     texture_px_from_sign_xy,
     validate_code,
 )
+
 from signpose.cli import main
-from signpose.errors import InputError
+from signpose.core.errors import InputError
 
 PX = 256
 

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+from signpose.frontend.homography import apply_homography, fit_homography
+from signpose.frontend.sign import ALL_CODES, sign_keypoints
 
-from frontend.homography import apply_homography, fit_homography
-from frontend.sign import ALL_CODES, sign_keypoints
-from frontend.synth import BACKGROUNDS, render_background, render_crop
-from signpose.errors import InputError
+from signpose.core.errors import InputError
+from signpose.sim.crops import BACKGROUNDS, render_background, render_crop
 
 
 def test_same_seed_same_crop():

@@ -13,7 +13,7 @@ import logging
 import sys
 
 from signpose import __version__
-from signpose.errors import SignposeError
+from signpose.core.errors import SignposeError
 
 # Subcommand modules, in the order `signpose --help` lists them.
 COMMANDS = (
@@ -86,7 +86,7 @@ def add_quiet(parser: argparse.ArgumentParser) -> None:
 
 def codes_arg(text: str) -> tuple[str, ...]:
     """argparse type for ``--codes 0001,0010``."""
-    from frontend.sign import ALL_CODES
+    from signpose.frontend.sign import ALL_CODES
 
     codes = tuple(c.strip() for c in text.split(",") if c.strip())
     bad = [c for c in codes if c not in ALL_CODES]

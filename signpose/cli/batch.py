@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from signpose.batch import STATUS_FAILED, SUMMARY_NAME, run_batch
-    from signpose.errors import InputError
+    from signpose.core.errors import InputError
 
     if args.jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {args.jobs}")

@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from estimator.results_io import compare_dir, metrics_table
+    from signpose.io.results import compare_dir, metrics_table
 
     compare_dir(args.dir, args.gt)
     print(metrics_table(args.dir))

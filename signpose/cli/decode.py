@@ -19,8 +19,8 @@ from pathlib import Path
 
 import cv2
 
-from frontend.decoder import decode_roi
 from signpose.cli import EXIT_INPUT, EXIT_OK, codes_arg
+from signpose.frontend.decoder import decode_roi
 
 
 def register(sub: argparse._SubParsersAction) -> None:

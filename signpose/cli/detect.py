@@ -34,7 +34,7 @@ def _r(x: float) -> float:
 def run(args: argparse.Namespace) -> int:
     import cv2
 
-    from frontend.detector import SignDetector
+    from signpose.frontend.detector import SignDetector
 
     detector = SignDetector(args.cascade)
     n_read = 0

@@ -7,7 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from signpose.cli import add_quiet
-from signpose.errors import InputError
+from signpose.core.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -43,11 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from estimator.camera import load_camera
-    from estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
-    from estimator.results_io import write_outputs
-    from frontend.observations import read_observations
-    from maps.loader import load_map
+    from signpose.estimator.camera import load_camera
+    from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
+    from signpose.frontend.observations import read_observations
+    from signpose.io.results import write_outputs
+    from signpose.maps.loader import load_map
 
     frames = read_observations(args.observations)
     sign_map = load_map(args.map)

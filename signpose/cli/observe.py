@@ -33,10 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from estimator.camera import load_camera
-    from maps.loader import load_map
-    from signpose.errors import OutputError
-    from signpose.inputs import open_source
+    from signpose.core.errors import OutputError
+    from signpose.estimator.camera import load_camera
+    from signpose.io.sources import open_source
+    from signpose.maps.loader import load_map
     from signpose.pipeline import ObserveSettings, observe
 
     sign_map = load_map(args.map) if args.map else None

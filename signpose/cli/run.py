@@ -62,10 +62,10 @@ def print_result(result, out=None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from estimator.camera import load_camera
-    from estimator.estimate import EstimatorSettings
-    from estimator.smoother import SmootherSettings
-    from maps.loader import load_map
+    from signpose.estimator.camera import load_camera
+    from signpose.estimator.estimate import EstimatorSettings
+    from signpose.estimator.smoother import SmootherSettings
+    from signpose.maps.loader import load_map
     from signpose.pipeline import ObserveSettings, RunSettings
     from signpose.pipeline import run as run_pipeline
 

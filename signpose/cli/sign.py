@@ -7,9 +7,9 @@ from pathlib import Path
 
 import cv2
 
-from frontend.sign import render_sign_png, render_sign_svg, validate_code
-from signpose.errors import InputError, OutputError
-from signpose.fileio import atomic_path, atomic_write
+from signpose.core.errors import InputError, OutputError
+from signpose.core.fileio import atomic_path, atomic_write
+from signpose.frontend.sign import render_sign_png, render_sign_svg, validate_code
 
 
 def register(sub: argparse._SubParsersAction) -> None:

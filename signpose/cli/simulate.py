@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from maps.loader import bundled_map_path, load_map
 from signpose.cli import add_quiet
-from signpose.simulate import FORMATS, SimSettings, simulate
-from signpose.trajectories import TRAJECTORIES
+from signpose.maps.loader import bundled_map_path, load_map
+from signpose.sim.flight import FORMATS, SimSettings, simulate
+from signpose.sim.trajectories import TRAJECTORIES
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from signpose.cli import add_quiet
-from signpose.errors import InputError, OutputError
+from signpose.core.errors import InputError, OutputError
 
 log = logging.getLogger(__name__)
 
@@ -48,8 +48,8 @@ def scene_negatives(seed: int, n_frames: int) -> list:
     import cv2
     import numpy as np
 
-    from maps.loader import bundled_map_path, load_map
-    from signpose.simulate import SimSettings, read_boxes, simulate
+    from signpose.maps.loader import bundled_map_path, load_map
+    from signpose.sim.flight import SimSettings, read_boxes, simulate
 
     sign_map = load_map(bundled_map_path())
     out = []
@@ -79,8 +79,8 @@ def scene_negatives(seed: int, n_frames: int) -> list:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from frontend.cascade_xml import write_cascade_xml
-    from frontend.haar import TrainSettings, train_sign_cascade
+    from signpose.training.cascade_xml import write_cascade_xml
+    from signpose.training.haar import TrainSettings, train_sign_cascade
 
     if args.out.suffix.lower() != ".xml":
         raise InputError(f"{args.out}: use a .xml file name")

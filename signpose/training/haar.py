@@ -519,7 +519,7 @@ def make_miner(
             masks.append(np.asarray(boxes, float).reshape(-1, 4))
 
     def mine(cascade: Cascade, n: int, rng: np.random.Generator) -> tuple[np.ndarray, int]:
-        from frontend.cascade_xml import write_cascade_xml
+        from signpose.training.cascade_xml import write_cascade_xml
 
         found: list[np.ndarray] = []
         n_found = tried = n_accepted = 0
@@ -641,8 +641,8 @@ def render_positives(
     Returns:
         (n, window_px, window_px) uint8.
     """
-    from frontend.sign import ALL_CODES
-    from frontend.synth import BACKGROUNDS, render_crop
+    from signpose.frontend.sign import ALL_CODES
+    from signpose.sim.crops import BACKGROUNDS, render_crop
 
     codes = tuple(codes or ALL_CODES)
     out = np.empty((n, window_px, window_px), np.uint8)
@@ -730,7 +730,7 @@ def photo_images() -> list[np.ndarray]:
 
 def background_images(rng: np.random.Generator, per_kind: int = 6) -> list[np.ndarray]:
     """Sign-free negative images: procedural backgrounds of every kind plus photographs."""
-    from frontend.synth import BACKGROUNDS, render_background
+    from signpose.sim.crops import BACKGROUNDS, render_background
 
     out = []
     for kind in BACKGROUNDS:

@@ -20,8 +20,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from estimator.camera import CameraModel
-from signpose.errors import InputError
+from signpose.core.errors import InputError
+from signpose.estimator.camera import CameraModel
 
 log = logging.getLogger(__name__)
 
@@ -254,7 +254,7 @@ class McapSource(FrameSource):
     kind = "mcap"
 
     def __init__(self, path: Path, topic: str | None = None):
-        from signpose import mcap_io
+        from signpose.io import mcap as mcap_io
 
         super().__init__(path)
         self.log = mcap_io.McapLog(path)
@@ -294,7 +294,7 @@ class McapSource(FrameSource):
             self._problem(self.log.problem)
 
     def _find_camera(self) -> CameraModel | None:
-        from signpose import mcap_io
+        from signpose.io import mcap as mcap_io
 
         cams = [c for c in self.log.channels if c.is_camera]
         if not cams:
@@ -304,7 +304,7 @@ class McapSource(FrameSource):
         return None
 
     def __iter__(self) -> Iterator[Frame]:
-        from signpose import mcap_io
+        from signpose.io import mcap as mcap_io
 
         self.problems = []
         index = 0
@@ -370,7 +370,7 @@ def _has_mcap_magic(p: Path) -> bool:
 
 def check_source_camera(source_name: str, camera: CameraModel, image_size: tuple[int, int]) -> None:
     """InputError when the images are not the camera's size (estimator.camera.check_image_size)."""
-    from estimator.camera import check_image_size
+    from signpose.estimator.camera import check_image_size
 
     check_image_size(camera, image_size[0], image_size[1], source_name)
 

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.camera import CameraModel, pixel_from_world_point
-from estimator.tum import Trajectory
-from frontend.observations import FrameObservations, SignObservation
-from maps.loader import MapSign, SignMap
+from signpose.estimator.camera import CameraModel, pixel_from_world_point
+from signpose.estimator.tum import Trajectory
+from signpose.frontend.observations import FrameObservations, SignObservation
+from signpose.maps.loader import MapSign, SignMap
 
 
 @dataclass(frozen=True)
@@ -180,7 +180,7 @@ def paper_like_frames(
     Returns:
         (observations per frame, ground-truth trajectory, injected faults).
     """
-    from signpose.trajectories import make_trajectory
+    from signpose.sim.trajectories import make_trajectory
 
     gt = make_trajectory(
         flight, sign_map, n_frames=n_frames, fps=fps, distance_m=distance_m, seed=seed

@@ -12,8 +12,8 @@ import math
 
 import numpy as np
 
-from estimator.tum import Trajectory
-from maps.loader import SignMap
+from signpose.estimator.tum import Trajectory
+from signpose.maps.loader import SignMap
 
 TRAJECTORIES = ("climb-hover-depart", "orbit", "lawnmower")
 

@@ -30,12 +30,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from estimator.camera import EQUIDISTANT, PLUMB_BOB, CameraModel
-from estimator.tum import Trajectory, quat_xyzw_from_rotation
-from frontend.observations import FrameObservations
-from maps.loader import SignMap
-from signpose.errors import InputError, OutputError
-from signpose.fileio import atomic_path
+from signpose.core.errors import InputError, OutputError
+from signpose.core.fileio import atomic_path
+from signpose.estimator.camera import EQUIDISTANT, PLUMB_BOB, CameraModel
+from signpose.estimator.tum import Trajectory, quat_xyzw_from_rotation
+from signpose.frontend.observations import FrameObservations
+from signpose.maps.loader import SignMap
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +83,7 @@ def schema_text(name: str) -> str:
     """The jsonschema of ``foxglove.<name>`` as shipped in ``signpose/schemas``."""
     if name not in SCHEMA_NAMES:
         raise KeyError(f"no schema for {name!r}")
-    return resources.files("signpose").joinpath("schemas", f"{name}.json").read_text("utf-8")
+    return resources.files("signpose.io").joinpath("schemas", f"{name}.json").read_text("utf-8")
 
 
 def schema(name: str) -> dict:
@@ -362,7 +362,7 @@ class McapJsonWriter:
 class McapFrameWriter:
     """The simulator's ``--format mcap`` output: images, ground truth and the camera.
 
-    Implements ``signpose.simulate.FrameWriter``. Topics: ``/camera/image/compressed``
+    Implements ``signpose.sim.flight.FrameWriter``. Topics: ``/camera/image/compressed``
     (foxglove.CompressedImage, JPEG), ``/camera/calibration`` (foxglove.CameraCalibration,
     once, before the first image), and, when the true poses are given,
     ``/groundtruth/pose`` (foxglove.PoseInFrame, world_T_cam) and ``/tf``

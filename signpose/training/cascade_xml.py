@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from frontend.haar import Cascade, Stage, Stump
-from signpose.errors import InputError
-from signpose.fileio import atomic_write
+from signpose.core.errors import InputError
+from signpose.core.fileio import atomic_write
+from signpose.training.haar import Cascade, Stage, Stump
 
 
 def _f(x: float) -> str:

@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.estimate import EstimateResult, MethodEstimate
-from estimator.metrics import compute_metrics, format_table
-from estimator.tum import Trajectory, quat_xyzw_from_rotation, read_tum, write_tum
-from signpose.errors import InputError
-from signpose.fileio import atomic_write, ensure_dir
+from signpose.core.errors import InputError
+from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.estimator.estimate import EstimateResult, MethodEstimate
+from signpose.estimator.metrics import compute_metrics, format_table
+from signpose.estimator.tum import Trajectory, quat_xyzw_from_rotation, read_tum, write_tum
 
 CSV_HEADER = (
     "method",

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from signpose.errors import OutputError
+from signpose.core.errors import OutputError
 
 
 def umask_mode(directory: bool = False) -> int:

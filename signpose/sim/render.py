@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from frontend.sign import fill_polygon_aa
+from signpose.frontend.sign import fill_polygon_aa
 
 # Paint reflectances on the 0..255 scale: matt black and white sign faces.
 SIGN_BLACK = 28.0

@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from frontend.homography import Ellipse, apply_homography, disc_ellipse
-from frontend.sign import fill_polygon_aa, sign_keypoints, sign_shape, validate_code
+from signpose.frontend.homography import Ellipse, apply_homography, disc_ellipse
+from signpose.frontend.sign import fill_polygon_aa, sign_keypoints, sign_shape, validate_code
 
 BACKGROUNDS: tuple[str, ...] = ("plain", "sky", "lattice", "lines", "ground", "clutter")
 

@@ -46,26 +46,26 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from estimator.camera import (
+from signpose.core.errors import InputError, OutputError
+from signpose.core.fileio import atomic_path, atomic_write, ensure_dir, umask_mode
+from signpose.estimator.camera import (
     CameraModel,
     pinhole_camera,
     pixel_from_cam_point,
     pixel_from_world_point,
     write_camera_info,
 )
-from estimator.tum import Trajectory, write_tum
-from frontend.render import (
+from signpose.estimator.tum import Trajectory, write_tum
+from signpose.frontend.sign import sign_keypoints, sign_shape
+from signpose.maps.loader import SignMap, write_map
+from signpose.sim.render import (
     Backdrop,
     ProjectedLine,
     ProjectedSign,
     RenderOptions,
     compose_frame,
 )
-from frontend.sign import sign_keypoints, sign_shape
-from maps.loader import SignMap, write_map
-from signpose.errors import InputError, OutputError
-from signpose.fileio import atomic_path, atomic_write, ensure_dir, umask_mode
-from signpose.trajectories import TRAJECTORIES, make_trajectory
+from signpose.sim.trajectories import TRAJECTORIES, make_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +84,7 @@ class SimSettings:
     Attributes:
         frames: number of frames.
         fps: frame rate [Hz].
-        trajectory: one of ``signpose.trajectories.TRAJECTORIES``.
+        trajectory: one of ``signpose.sim.trajectories.TRAJECTORIES``.
         seed: seeds the trajectory wobble, the scene textures, dirt, occluders,
             lighting and noise. Same seed, same outputs.
         width, height: image size [px].
@@ -761,7 +761,7 @@ class FrameWriter(Protocol):
     partial output is removed; on success ``close`` publishes it atomically.
 
     Implement ``write``, ``close``, ``abort`` and the context-manager pair for
-    another container (``signpose.mcap_io.McapFrameWriter`` does, for MCAP with
+    another container (``signpose.io.mcap.McapFrameWriter`` does, for MCAP with
     foxglove.CompressedImage), then return it from ``make_frame_writer`` and add
     its name to ``FORMATS``.
     """
@@ -898,7 +898,7 @@ def make_frame_writer(
     if fmt == "png":
         return PngWriter(Path(out_dir) / "frames")
     if fmt == "mcap":
-        from signpose.mcap_io import McapFrameWriter
+        from signpose.io.mcap import McapFrameWriter
 
         return McapFrameWriter(Path(out_dir) / "flight.mcap", camera, world_frame, world_T_cams)
     raise InputError(f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
