@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from signpose.estimator.tum import Trajectory
+from signpose.estimator.trajectory import Trajectory
 
 
 @dataclass(frozen=True)

@@ -7,23 +7,13 @@ One line per frame, in frame order; a frame with no signs is still a line::
                 "bbox_px": [x, y, w, h], "sigma_px": 0.4, "score": 1.0}]}
 
 Pixels are raw image pixels (distorted, centres at integers). Only ``code``
-and ``keypoints_px.center`` are required for a sign. This module is the only
-one that reads or writes the format.
+and ``keypoints_px.center`` are required for a sign. The file is read and
+written by ``signpose.io.observations``.
 """
 
 from __future__ import annotations
 
-import json
-import math
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import IO
-
-from signpose.frontend.sign import ALL_CODES, KEYPOINT_NAMES
-
-from signpose.core.errors import InputError
-from signpose.core.fileio import atomic_write
 
 DEFAULT_SIGMA_PX = 0.5
 
@@ -67,126 +57,3 @@ class FrameObservations:
     stamp_ns: int
     image_size: tuple[int, int]
     signs: tuple[SignObservation, ...] = field(default_factory=tuple)
-
-
-def _num(x) -> float:
-    return round(float(x), 4)
-
-
-def frame_to_dict(obs: FrameObservations) -> dict:
-    signs = []
-    for s in obs.signs:
-        d: dict = {
-            "code": s.code,
-            "keypoints_px": {k: [_num(v[0]), _num(v[1])] for k, v in s.keypoints_px.items()},
-        }
-        if s.bbox_px is not None:
-            d["bbox_px"] = [_num(v) for v in s.bbox_px]
-        d["sigma_px"] = _num(s.sigma_px)
-        d["score"] = _num(s.score)
-        signs.append(d)
-    return {
-        "frame": int(obs.frame),
-        "stamp_ns": int(obs.stamp_ns),
-        "image_size": [int(obs.image_size[0]), int(obs.image_size[1])],
-        "signs": signs,
-    }
-
-
-def frame_to_json(obs: FrameObservations) -> str:
-    """One JSON line (no newline) for ``obs``."""
-    return json.dumps(frame_to_dict(obs), separators=(", ", ": "))
-
-
-def _pair(value, where: str) -> tuple[float, float]:
-    if not isinstance(value, list | tuple) or len(value) != 2:
-        raise ValueError(f"{where} must be [u, v]")
-    u, v = float(value[0]), float(value[1])
-    if not (math.isfinite(u) and math.isfinite(v)):
-        raise ValueError(f"{where} is not finite")
-    return (u, v)
-
-
-def frame_from_dict(d: dict) -> FrameObservations:
-    """Parse one line's object; raises ValueError with what is wrong."""
-    if not isinstance(d, dict):
-        raise ValueError("line is not a JSON object")
-    for key in ("frame", "stamp_ns", "image_size", "signs"):
-        if key not in d:
-            raise ValueError(f"missing field '{key}'")
-    size = d["image_size"]
-    if not isinstance(size, list) or len(size) != 2:
-        raise ValueError("image_size must be [width, height]")
-    if not isinstance(d["signs"], list):
-        raise ValueError("signs must be a list")
-    signs = []
-    for i, s in enumerate(d["signs"]):
-        if not isinstance(s, dict):
-            raise ValueError(f"sign #{i + 1} is not an object")
-        code = s.get("code")
-        if code not in ALL_CODES:
-            raise ValueError(f"sign #{i + 1}: code must be '0000'..'1111', got {code!r}")
-        kps = s.get("keypoints_px")
-        if not isinstance(kps, dict) or "center" not in kps:
-            raise ValueError(f"sign #{i + 1}: keypoints_px.center is required")
-        keypoints = {}
-        for name, value in kps.items():
-            if name not in KEYPOINT_NAMES:
-                raise ValueError(f"sign #{i + 1}: unknown keypoint '{name}'")
-            keypoints[name] = _pair(value, f"sign #{i + 1}: keypoints_px.{name}")
-        bbox = s.get("bbox_px")
-        if bbox is not None:
-            if not isinstance(bbox, list) or len(bbox) != 4:
-                raise ValueError(f"sign #{i + 1}: bbox_px must be [x, y, w, h]")
-            bbox = tuple(float(v) for v in bbox)
-        sigma = float(s.get("sigma_px", DEFAULT_SIGMA_PX))
-        if not math.isfinite(sigma) or sigma <= 0:
-            raise ValueError(f"sign #{i + 1}: sigma_px must be > 0")
-        score = float(s.get("score", 1.0))
-        signs.append(SignObservation(code, keypoints, bbox, sigma, score))
-    return FrameObservations(
-        frame=int(d["frame"]),
-        stamp_ns=int(d["stamp_ns"]),
-        image_size=(int(size[0]), int(size[1])),
-        signs=tuple(signs),
-    )
-
-
-def iter_observations(path: str | Path) -> Iterator[FrameObservations]:
-    """Yield the frames of an observations file; InputError names the bad line."""
-    p = Path(path)
-    try:
-        handle = p.open(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{p}: observations file not found") from None
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read observations file ({exc.strerror})") from None
-    with handle:
-        for lineno, line in enumerate(handle, start=1):
-            if not line.strip():
-                continue
-            try:
-                yield frame_from_dict(json.loads(line))
-            except (ValueError, TypeError) as exc:
-                msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-                raise InputError(f"{p}: line {lineno}: malformed observation ({msg})") from None
-
-
-def read_observations(path: str | Path) -> list[FrameObservations]:
-    """All frames of an observations file, in file order."""
-    frames = list(iter_observations(path))
-    if not frames:
-        raise InputError(f"{path}: observations file is empty")
-    return frames
-
-
-def write_observations(path: str | Path, frames: Iterable[FrameObservations]) -> None:
-    """Write all ``frames`` atomically."""
-    with atomic_write(path) as f:
-        for obs in frames:
-            f.write(frame_to_json(obs) + "\n")
-
-
-def append_observation(handle: IO[str], obs: FrameObservations) -> None:
-    """Append one frame to an open stream (for streaming writers that flush as they go)."""
-    handle.write(frame_to_json(obs) + "\n")

@@ -36,7 +36,7 @@ from signpose.estimator.smoother import (
     smooth_batch,
     smooth_isam2,
 )
-from signpose.estimator.tum import Trajectory
+from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose.core.fileio import atomic_write

@@ -401,7 +401,8 @@ def make_fig13(work: Path, fig_path: Path) -> dict:
     from matplotlib.colors import LinearSegmentedColormap
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
     from signpose.estimator.metrics import compute_metrics
-    from signpose.estimator.tum import read_tum
+
+    from signpose.io.tum import read_tum
 
     run_dir, flight_dir = _pipeline_dirs(work)
     gt = read_tum(flight_dir / "groundtruth.tum")

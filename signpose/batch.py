@@ -118,7 +118,7 @@ def _beside(input_path: Path, name: str) -> str:
 
 def run_flight(job: FlightJob) -> FlightOutcome:
     """Run one flight; never raises (failures are outcomes). Writes the done marker last."""
-    from signpose.estimator.camera import load_camera
+    from signpose.io.camera_file import load_camera
     from signpose.maps.loader import load_map
     from signpose.pipeline import RunSettings, run
 

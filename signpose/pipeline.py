@@ -33,7 +33,8 @@ from tqdm import tqdm
 from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.camera import CameraModel, check_image_size, pixel_from_world_point
-from signpose.frontend.observations import FrameObservations, append_observation
+from signpose.frontend.observations import FrameObservations
+from signpose.io.observations import append_observation
 from signpose.io.sources import FrameSource, open_source, prefetch
 from signpose.maps.loader import SignMap
 
@@ -488,7 +489,7 @@ def check_codes_seen(frames: tuple[FrameObservations, ...], sign_map: SignMap, w
 
 def _trajectories(estimate) -> tuple[dict, dict]:
     """method -> Trajectory (NaN where no pose), method -> (N, 3) sigma [m]."""
-    from signpose.estimator.tum import Trajectory
+    from signpose.estimator.trajectory import Trajectory
 
     trajs, sigmas = {}, {}
     for name, m in estimate.methods.items():
@@ -507,7 +508,7 @@ def _trajectories(estimate) -> tuple[dict, dict]:
 
 
 def _valid_only(traj):
-    from signpose.estimator.tum import Trajectory
+    from signpose.estimator.trajectory import Trajectory
 
     ok = np.all(np.isfinite(traj.world_t_cam), axis=1)
     return Trajectory(traj.stamps_s[ok], traj.world_t_cam[ok], traj.quat_xyzw[ok])
@@ -546,7 +547,7 @@ def run(
         The RunResult; ``report.json`` in ``out_dir`` holds the same numbers.
     """
     from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
-    from signpose.estimator.tum import read_tum
+    from signpose.io.tum import read_tum
 
     s = settings or RunSettings()
     t_start = time.perf_counter()

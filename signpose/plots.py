@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
 
 from signpose.core.fileio import atomic_path  # noqa: E402
-from signpose.estimator.tum import Trajectory  # noqa: E402
+from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import SignMap  # noqa: E402
 
 _COLORS = {"groundtruth": "0.2", "baseline": "#d95319", "smoothed": "#0072bd"}

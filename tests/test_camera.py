@@ -9,15 +9,14 @@ from signpose.estimator.camera import (
     PLUMB_BOB,
     CameraModel,
     check_image_size,
-    load_camera,
     pinhole_camera,
     pixel_from_cam_point,
     pixel_from_world_point,
     undistort_px,
-    write_camera_info,
 )
 
 from signpose.core.errors import InputError
+from signpose.io.camera_file import load_camera, write_camera_info
 
 K = np.array([[1210.5, 0.0, 955.25], [0.0, 1208.75, 541.5], [0.0, 0.0, 1.0]])
 CAMERAS = {

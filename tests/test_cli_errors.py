@@ -7,14 +7,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from signpose.estimator.camera import pinhole_camera, write_camera_info
-from signpose.frontend.observations import read_observations
+from signpose.estimator.camera import pinhole_camera
 from signpose.maps.loader import bundled_map_path
 from test_pipeline import simulate_tiny, truth_detector
 
 from signpose import pipeline
 from signpose.cli import main
 from signpose.io import mcap as mcap_io
+from signpose.io.camera_file import write_camera_info
+from signpose.io.observations import read_observations
 
 MAP = str(bundled_map_path())
 

@@ -5,13 +5,14 @@ import json
 import numpy as np
 import pytest
 from conftest import estimator_scene
-from signpose.estimator.camera import pinhole_camera, write_camera_info
-from signpose.estimator.tum import read_tum, write_tum
-from signpose.frontend.observations import write_observations
+from signpose.estimator.camera import pinhole_camera
 from signpose.maps.loader import bundled_map_path
 
 from signpose.cli import main
+from signpose.io.camera_file import write_camera_info
+from signpose.io.observations import write_observations
 from signpose.io.results import read_trajectory_csv
+from signpose.io.tum import read_tum, write_tum
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from signpose.estimator.camera import pinhole_camera
-from signpose.estimator.tum import Trajectory
+from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.maps.loader import bundled_map_path, load_map
 

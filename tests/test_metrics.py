@@ -3,7 +3,7 @@
 import numpy as np
 from conftest import estimator_scene
 from signpose.estimator.metrics import associate, compute_metrics, rpe_translation, umeyama_se3
-from signpose.estimator.tum import Trajectory
+from signpose.estimator.trajectory import Trajectory
 
 
 def _line_traj(n: int = 11, step: float = 0.5) -> Trajectory:

@@ -8,11 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from signpose.frontend.observations import FrameObservations, SignObservation, read_observations
+from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose import pipeline
 from signpose.io import mcap as mcap_io
+from signpose.io.observations import read_observations
 from signpose.io.sources import open_source
 from signpose.plots import PlotData, plot_errors, write_plots
 
@@ -199,7 +200,7 @@ def test_map_codes_never_seen(tiny_flight, tmp_path):
 
 
 def test_plots_from_fake_data(tmp_path):
-    from signpose.estimator.tum import Trajectory
+    from signpose.estimator.trajectory import Trajectory
 
     from signpose.sim.trajectories import make_trajectory
 

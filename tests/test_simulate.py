@@ -7,13 +7,14 @@ import cv2
 import numpy as np
 import pytest
 from conftest import clean_sim_options, white_centroid_px
-from signpose.estimator.camera import load_camera, pixel_from_world_point
-from signpose.estimator.tum import read_tum
+from signpose.estimator.camera import pixel_from_world_point
 from signpose.frontend.sign import LOCATION_SIDE_R, all_slot_keypoints
 from signpose.maps.loader import load_map
 
 from signpose.cli import main
 from signpose.core.errors import InputError, OutputError
+from signpose.io.camera_file import load_camera
+from signpose.io.tum import read_tum
 from signpose.sim.flight import (
     FORMATS,
     SimSettings,

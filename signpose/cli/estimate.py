@@ -43,9 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from signpose.estimator.camera import load_camera
     from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
-    from signpose.frontend.observations import read_observations
+    from signpose.io.camera_file import load_camera
+    from signpose.io.observations import read_observations
     from signpose.io.results import write_outputs
     from signpose.maps.loader import load_map
 

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from signpose.core.errors import OutputError
-    from signpose.estimator.camera import load_camera
+    from signpose.io.camera_file import load_camera
     from signpose.io.sources import open_source
     from signpose.maps.loader import load_map
     from signpose.pipeline import ObserveSettings, observe

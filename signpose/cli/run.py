@@ -62,9 +62,9 @@ def print_result(result, out=None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from signpose.estimator.camera import load_camera
     from signpose.estimator.estimate import EstimatorSettings
     from signpose.estimator.smoother import SmootherSettings
+    from signpose.io.camera_file import load_camera
     from signpose.maps.loader import load_map
     from signpose.pipeline import ObserveSettings, RunSettings
     from signpose.pipeline import run as run_pipeline

@@ -33,7 +33,7 @@ import numpy as np
 from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_path
 from signpose.estimator.camera import EQUIDISTANT, PLUMB_BOB, CameraModel
-from signpose.estimator.tum import Trajectory, quat_xyzw_from_rotation
+from signpose.estimator.trajectory import Trajectory, quat_xyzw_from_rotation
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 

@@ -1,7 +1,7 @@
 """The estimate output folder: ``<method>.tum``, ``trajectory.csv`` and ``report.json``.
 
 This is the one module that reads and writes ``trajectory.csv`` and
-``report.json`` (TUM goes through ``estimator.tum``). Every file is written
+``report.json`` (TUM goes through ``signpose.io.tum``). Every file is written
 atomically.
 
 trajectory.csv: one row per frame and method, header
@@ -25,7 +25,8 @@ from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.estimate import EstimateResult, MethodEstimate
 from signpose.estimator.metrics import compute_metrics, format_table
-from signpose.estimator.tum import Trajectory, quat_xyzw_from_rotation, read_tum, write_tum
+from signpose.estimator.trajectory import Trajectory, quat_xyzw_from_rotation
+from signpose.io.tum import read_tum, write_tum
 
 CSV_HEADER = (
     "method",

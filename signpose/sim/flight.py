@@ -11,7 +11,7 @@ centred on the stamp.
 Output folder (``simulate``):
     video.mp4 or frames/NNNNNN.png   the frames
     camera.yaml                      ROS camera_info (estimator.camera)
-    groundtruth.tum                  world_T_cam per frame (estimator.tum)
+    groundtruth.tum                  world_T_cam per frame (signpose.io.tum)
     boxes.jsonl                      per-frame truth of every visible sign (this module)
     map.yaml                         copy of the map (maps.loader)
 
@@ -53,10 +53,11 @@ from signpose.estimator.camera import (
     pinhole_camera,
     pixel_from_cam_point,
     pixel_from_world_point,
-    write_camera_info,
 )
-from signpose.estimator.tum import Trajectory, write_tum
+from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.sign import sign_keypoints, sign_shape
+from signpose.io.camera_file import write_camera_info
+from signpose.io.tum import write_tum
 from signpose.maps.loader import SignMap, write_map
 from signpose.sim.render import (
     Backdrop,

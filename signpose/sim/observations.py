@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from signpose.estimator.camera import CameraModel, pixel_from_world_point
-from signpose.estimator.tum import Trajectory
+from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.maps.loader import MapSign, SignMap
 

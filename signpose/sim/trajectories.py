@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from signpose.estimator.tum import Trajectory
+from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import SignMap
 
 TRAJECTORIES = ("climb-hover-depart", "orbit", "lawnmower")

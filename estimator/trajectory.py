@@ -1,19 +1,15 @@
-"""Trajectories and the TUM file format (the one module that reads and writes TUM).
+"""Camera trajectories: timed poses ``world_T_cam`` and quaternion conversions.
 
-TUM: one pose per line, ``t x y z qx qy qz qw``, single spaces, t in seconds,
-the pose being ``world_T_cam`` (position of the camera centre in the world,
-rotation from camera to world, quaternion w last). ``#`` lines are comments.
+A pose is ``world_T_cam``: the camera centre in the world frame [m] and the
+rotation from camera to world, stored as a unit quaternion ``quat_xyzw`` (w
+last). The TUM file format lives in ``signpose.io.tum``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-
-from signpose.core.errors import InputError
-from signpose.core.fileio import atomic_write
 
 
 @dataclass(frozen=True)
@@ -91,49 +87,3 @@ def quat_xyzw_from_rotation(R: np.ndarray) -> np.ndarray:
         q /= np.linalg.norm(q)
         out[i] = -q if q[3] < 0 else q
     return out
-
-
-def read_tum(path: str | Path) -> Trajectory:
-    """Read a TUM file; InputError names the file and line on failure."""
-    p = Path(path)
-    try:
-        lines = p.read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise InputError(f"{p}: trajectory file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: cannot read trajectory file ({exc})") from None
-    rows = []
-    for lineno, line in enumerate(lines, start=1):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        parts = s.replace(",", " ").split()
-        if len(parts) != 8:
-            raise InputError(f"{p}: line {lineno}: expected 't x y z qx qy qz qw' (8 numbers)")
-        try:
-            row = [float(x) for x in parts]
-        except ValueError:
-            raise InputError(f"{p}: line {lineno}: not a number") from None
-        if not np.all(np.isfinite(row)) or np.linalg.norm(row[4:]) < 1e-9:
-            raise InputError(f"{p}: line {lineno}: non-finite value or zero quaternion")
-        rows.append(row)
-    if not rows:
-        raise InputError(f"{p}: trajectory file has no poses")
-    a = np.array(rows)
-    q = a[:, 4:8] / np.linalg.norm(a[:, 4:8], axis=1, keepdims=True)
-    return Trajectory(a[:, 0], a[:, 1:4], q)
-
-
-def tum_lines(traj: Trajectory) -> list[str]:
-    out = []
-    for t, p, q in zip(traj.stamps_s, traj.world_t_cam, traj.quat_xyzw, strict=True):
-        vals = [f"{t:.9f}"] + [f"{v:.6f}" for v in p] + [f"{v:.9f}" for v in q]
-        out.append(" ".join(vals))
-    return out
-
-
-def write_tum(path: str | Path, traj: Trajectory) -> None:
-    """Write ``traj`` as TUM (atomically)."""
-    with atomic_write(path) as f:
-        for line in tum_lines(traj):
-            f.write(line + "\n")
