@@ -15,10 +15,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
-from signpose.estimator.perframe import FramePose, PerFrameSettings, run_per_frame
+from signpose.estimator.perframe import FramePose, PerFrameSettings, PoseFailure, run_per_frame
 from signpose.estimator.smoother import (
-    STATUS_BRIDGED,
-    STATUS_OK,
     Measurements,
     SmootherResult,
     SmootherSettings,
@@ -29,6 +27,7 @@ from signpose.estimator.smoother import (
     smooth_batch,
     smooth_isam2,
 )
+from signpose.estimator.status import PoseState, PoseStatus
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 
@@ -38,7 +37,6 @@ log = logging.getLogger(__name__)
 
 METHODS = ("baseline", "pnp", "smoothed")
 SOLVERS = ("batch", "isam2")
-STATUS_NO_SIGN = "no sign seen"
 
 
 @dataclass(frozen=True)
@@ -85,7 +83,8 @@ class MethodEstimate:
         sigma_xyz: (N, 3) position standard deviation, world axes [m]; NaN
             where unknown (per-frame methods, or sigmas not computed).
         signs_used: (N,) distinct map signs used per frame.
-        status: (N,) "ok", or why there is no pose / how it was obtained.
+        status: (N,) how far each pose can be trusted (a PoseStatus), or why
+            there is none (a PoseFailure).
     """
 
     name: str
@@ -94,7 +93,7 @@ class MethodEstimate:
     valid: np.ndarray
     sigma_xyz: np.ndarray
     signs_used: np.ndarray
-    status: tuple[str, ...]
+    status: tuple[PoseState, ...]
 
     @property
     def coverage(self) -> float:
@@ -140,14 +139,16 @@ class OutlierReport:
 
     downweighted: tuple[Outlier, ...]
     misdecoded: tuple[Misdecode, ...]
-    baseline_rejected: tuple[tuple[int, str], ...]
+    baseline_rejected: tuple[tuple[int, PoseFailure], ...]
     unknown_codes: tuple[tuple[int, str], ...]
 
     def to_dict(self) -> dict:
         return {
             "downweighted": [asdict(o) for o in self.downweighted],
             "misdecoded": [asdict(o) for o in self.misdecoded],
-            "baseline_rejected": [{"frame": f, "reason": r} for f, r in self.baseline_rejected],
+            "baseline_rejected": [
+                {"frame": f, "reason": r.value} for f, r in self.baseline_rejected
+            ],
             "unknown_codes": [{"frame": f, "code": c} for f, c in self.unknown_codes],
         }
 
@@ -177,16 +178,23 @@ def _from_frame_poses(name: str, stamps: np.ndarray, poses: list[FramePose]) -> 
     n = len(poses)
     T = np.tile(np.eye(4), (n, 1, 1))
     valid = np.zeros(n, bool)
-    status = []
+    status: list[PoseState] = []
     for i, p in enumerate(poses):
         if p.world_T_cam is not None and np.all(np.isfinite(p.world_T_cam)):
             T[i] = p.world_T_cam
             valid[i] = True
-            status.append("ok")
+            status.append(PoseStatus.OK)
         else:
-            status.append(p.reason or "no pose")
-    used = np.array([p.signs_used for p in poses], dtype=np.int64)
-    return MethodEstimate(name, stamps, T, valid, np.full((n, 3), np.nan), used, tuple(status))
+            status.append(p.reason or PoseFailure.NONFINITE)
+    return MethodEstimate(
+        name=name,
+        stamps_s=stamps,
+        world_T_cam=T,
+        valid=valid,
+        sigma_xyz=np.full((n, 3), np.nan),
+        signs_used=np.array([p.signs_used for p in poses], dtype=np.int64),
+        status=tuple(status),
+    )
 
 
 def _from_smoother(
@@ -195,9 +203,17 @@ def _from_smoother(
     T = r.causal_world_T_cam if causal else r.world_T_cam
     valid = np.all(np.isfinite(T.reshape(len(T), -1)), axis=1)
     T = np.where(valid[:, None, None], T, np.eye(4))
-    status = tuple(STATUS_OK if o else STATUS_BRIDGED for o in r.observed)
+    status = tuple(PoseStatus.OK if o else PoseStatus.BRIDGED for o in r.observed)
     sigma = np.full_like(r.sigma_xyz, np.nan) if causal else r.sigma_xyz
-    return MethodEstimate(name, stamps, T, valid, sigma, r.signs_used.copy(), status)
+    return MethodEstimate(
+        name=name,
+        stamps_s=stamps,
+        world_T_cam=T,
+        valid=valid,
+        sigma_xyz=sigma,
+        signs_used=r.signs_used.copy(),
+        status=status,
+    )
 
 
 def check_inputs(
@@ -311,6 +327,49 @@ def gate_measurements(
     return kept, gated
 
 
+@dataclass(frozen=True)
+class _SmoothedRun:
+    """The smoother's share of an EstimateResult."""
+
+    methods: dict[str, MethodEstimate]
+    downweighted: tuple[Outlier, ...]
+    misdecoded: tuple[Misdecode, ...]
+    timing_s: dict[str, float]
+
+
+def _smoothed(
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    s: EstimatorSettings,
+    per_frame: dict[str, list[FramePose]],
+    progress: bool,
+) -> _SmoothedRun:
+    """The smoother over the flight, started from per-frame PnP (baseline where PnP has none)."""
+    stamps = np.array([f.stamp_ns for f in frames], dtype=np.float64) * 1e-9
+    meas = collect_measurements(frames, sign_map, camera)
+    causal_init = [p.world_T_cam for p in per_frame["pnp"]]
+    init = causal_init
+    if "baseline" in per_frame:
+        init = [
+            a if a is not None else b.world_T_cam
+            for a, b in zip(causal_init, per_frame["baseline"], strict=True)
+        ]
+    default = default_pose(sign_map)
+    t0 = time.perf_counter()
+    kept, gated = gate_measurements(meas, causal_init, camera, s.gate_px)
+    if s.solver == "batch":
+        r = smooth_batch(kept, stamps, init, camera, s.smoother, default)
+    else:
+        r = smooth_isam2(kept, stamps, causal_init, camera, s.smoother, default, progress)
+    timing = {"smoothed": time.perf_counter() - t0, "sigmas": r.sigma_seconds}
+    methods = {"smoothed": _from_smoother("smoothed", stamps, r)}
+    if r.causal_world_T_cam is not None:
+        methods["causal"] = _from_smoother("causal", stamps, r, causal=True)
+    down, mis = _outliers(meas, r, frames, sign_map, camera, s, gated)
+    return _SmoothedRun(methods=methods, downweighted=down, misdecoded=mis, timing_s=timing)
+
+
 def estimate_trajectories(
     frames: Sequence[FrameObservations],
     sign_map: SignMap,
@@ -356,37 +415,22 @@ def estimate_trajectories(
     down: tuple[Outlier, ...] = ()
     mis: tuple[Misdecode, ...] = ()
     if "smoothed" in wanted:
-        meas = collect_measurements(frames, sign_map, camera)
-        init = [p.world_T_cam for p in per_frame["pnp"]]
-        if "baseline" in per_frame:  # baseline where PnP has nothing
-            init = [
-                a if a is not None else b.world_T_cam
-                for a, b in zip(init, per_frame["baseline"], strict=True)
-            ]
-        default = default_pose(sign_map)
-        t0 = time.perf_counter()
-        causal_init = [p.world_T_cam for p in per_frame["pnp"]]
-        kept, gated = gate_measurements(meas, causal_init, camera, s.gate_px)
-        if s.solver == "batch":
-            r = smooth_batch(kept, stamps, init, camera, s.smoother, default)
-        else:
-            r = smooth_isam2(kept, stamps, causal_init, camera, s.smoother, default, progress)
-        timing["smoothed"] = time.perf_counter() - t0
-        timing["sigmas"] = r.sigma_seconds
-        methods["smoothed"] = _from_smoother("smoothed", stamps, r)
-        if r.causal_world_T_cam is not None:
-            methods["causal"] = _from_smoother("causal", stamps, r, causal=True)
-        down, mis = _outliers(meas, r, frames, sign_map, camera, s, gated)
+        run = _smoothed(frames, sign_map, camera, s, per_frame, progress)
+        methods.update(run.methods)
+        timing.update(run.timing_s)
+        down, mis = run.downweighted, run.misdecoded
     rejected = ()
     if "baseline" in per_frame:
         rejected = tuple(
             (p.frame, p.reason) for p in per_frame["baseline"] if p.world_T_cam is None
         )
     return EstimateResult(
-        methods,
-        np.array([f.frame for f in frames], dtype=np.int64),
-        signs_seen,
-        s,
-        OutlierReport(down, mis, rejected, unknown),
-        timing,
+        methods=methods,
+        frames=np.array([f.frame for f in frames], dtype=np.int64),
+        signs_seen=signs_seen,
+        settings=s,
+        outliers=OutlierReport(
+            downweighted=down, misdecoded=mis, baseline_rejected=rejected, unknown_codes=unknown
+        ),
+        timing_s=timing,
     )

@@ -11,26 +11,34 @@ Conventions: ``world_T_cam`` is (4, 4), the camera axes are OpenCV's
 from __future__ import annotations
 
 import contextlib
+import enum
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
+from tqdm import tqdm
 
-# Reasons a frame gets no pose (also used as status strings in the outputs).
-REASON_FEW_SIGNS = "fewer than 4 signs"
-REASON_FEW_POINTS = "fewer than 4 keypoints"
-REASON_COLLINEAR = "degenerate geometry: signs collinear"
-REASON_ONE_SPOT = "degenerate geometry: signs in one spot"
-REASON_HOMOGRAPHY = "homography failed"
-REASON_RANSAC = "fewer than 4 RANSAC inliers"
-REASON_BEHIND = "solution behind the camera"
-REASON_SPEED = "speed gate: too far from the previous pose"
-REASON_PNP = "PnP failed"
-REASON_NONFINITE = "non-finite solution"
+
+class PoseFailure(enum.Enum):
+    """Why a frame gets no per-frame pose; written to files as its lowercase token."""
+
+    FEW_SIGNS = "few_signs"  # fewer than 4 signs (the paper's method)
+    FEW_POINTS = "few_points"  # fewer than 4 keypoints (PnP)
+    COLLINEAR = "collinear"  # degenerate geometry: signs collinear
+    ONE_SPOT = "one_spot"  # degenerate geometry: signs in one spot
+    HOMOGRAPHY = "homography"  # the homography fit failed
+    RANSAC = "ransac"  # fewer than 4 RANSAC inliers
+    BEHIND = "behind"  # the solution puts signs behind the camera
+    SPEED = "speed_gate"  # too far from the previous pose (robustness rule 3)
+    PNP = "pnp"  # every PnP candidate failed
+    NONFINITE = "nonfinite"  # non-finite solution
+
+
+_NAN = float("nan")
 
 
 @dataclass(frozen=True)
@@ -81,7 +89,7 @@ class FramePose:
         frame: frame index.
         stamp_ns: frame time [ns].
         world_T_cam: (4, 4) camera pose in the world, or None.
-        reason: "" when posed, else why not (one of the REASON_* strings).
+        reason: None when posed, else why not.
         signs_used: number of distinct map signs that went into the solve.
         inlier_codes: codes of the signs kept (RANSAC inliers).
         rms_px: RMS reprojection error of the inliers [px] (NaN without pose).
@@ -90,7 +98,7 @@ class FramePose:
     frame: int
     stamp_ns: int
     world_T_cam: np.ndarray | None
-    reason: str = ""
+    reason: PoseFailure | None = None
     signs_used: int = 0
     inlier_codes: tuple[str, ...] = field(default_factory=tuple)
     rms_px: float = float("nan")
@@ -132,13 +140,13 @@ def _spread(points: np.ndarray) -> np.ndarray:
     return np.linalg.svd(centred, compute_uv=False) / np.sqrt(max(len(points), 1))
 
 
-def _degenerate(sv: np.ndarray, s: PerFrameSettings) -> str:
-    """A reason when points of spread ``sv`` (see _spread) cannot fix a pose, else ""."""
+def _degenerate(sv: np.ndarray, s: PerFrameSettings) -> PoseFailure | None:
+    """Why points of spread ``sv`` (see _spread) cannot fix a pose, or None."""
     if sv[0] < s.min_spread_m:
-        return REASON_ONE_SPOT
+        return PoseFailure.ONE_SPOT
     if sv[1] < s.min_aspect * sv[0] or sv[1] < s.min_spread_m:
-        return REASON_COLLINEAR
-    return ""
+        return PoseFailure.COLLINEAR
+    return None
 
 
 def _reproject_errors(
@@ -190,7 +198,7 @@ def _pose_from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def pose_from_homography(
     world_points: np.ndarray, normalised_px: np.ndarray, ransac_thresh: float
-) -> tuple[np.ndarray | None, np.ndarray, str]:
+) -> tuple[np.ndarray | None, np.ndarray, PoseFailure | None]:
     """The paper's Eqs. (7)-(13) on matched map and image points.
 
     Args:
@@ -199,7 +207,7 @@ def pose_from_homography(
         ransac_thresh: RANSAC reprojection threshold in normalised units.
 
     Returns:
-        (world_T_cam or None, (N,) inlier mask, reason).
+        (world_T_cam or None, (N,) inlier mask, why not or None).
     """
     M = np.asarray(world_points, dtype=float)
     m_c = M.mean(axis=0)  # step (1)
@@ -221,10 +229,10 @@ def pose_from_homography(
         confidence=0.999,
     )  # step (4), Eq. (10): H = [h1 h2 t']
     if H is None or not np.all(np.isfinite(H)):
-        return None, np.zeros(len(M), bool), REASON_HOMOGRAPHY
+        return None, np.zeros(len(M), bool), PoseFailure.HOMOGRAPHY
     inliers = mask.reshape(-1).astype(bool)
     if inliers.sum() < 4:
-        return None, inliers, REASON_RANSAC
+        return None, inliers, PoseFailure.RANSAC
     # Sign ambiguity: H is defined up to scale, including -1. The plane origin
     # (the centroid, at t') must be in front of the camera: t'_z > 0.
     if H[2, 2] < 0:
@@ -241,8 +249,8 @@ def pose_from_homography(
     R = R_plane @ R_t  # Eq. (12)
     t = R_plane @ T_t + tp
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
-        return None, inliers, REASON_NONFINITE
-    return _pose_from_rt(R, t), inliers, ""
+        return None, inliers, PoseFailure.NONFINITE
+    return _pose_from_rt(R, t), inliers, None
 
 
 class BaselineTracker:
@@ -273,14 +281,7 @@ class BaselineTracker:
                 and self._rejections < s.gate_reset_frames
             ):
                 self._rejections += 1
-                return FramePose(
-                    frame.frame,
-                    frame.stamp_ns,
-                    None,
-                    REASON_SPEED,
-                    pose.signs_used,
-                    pose.inlier_codes,
-                )
+                return replace(pose, world_T_cam=None, reason=PoseFailure.SPEED, rms_px=_NAN)
         self._rejections = 0
         self._prev_pos = pose.world_T_cam[:3, 3].copy()
         self._prev_stamp_ns = frame.stamp_ns
@@ -297,20 +298,132 @@ def solve_frame_baseline(
     s = settings or PerFrameSettings()
     c = _correspondences(frame, sign_map, camera, all_keypoints=False)
     distinct = sorted(set(c.codes))
+
+    def failed(reason: PoseFailure, used: tuple[str, ...] = ()) -> FramePose:
+        n_used = len(used) if used else len(distinct)
+        return FramePose(
+            frame=frame.frame,
+            stamp_ns=frame.stamp_ns,
+            world_T_cam=None,
+            reason=reason,
+            signs_used=n_used,
+            inlier_codes=used,
+        )
+
     if len(distinct) < 4:
-        return FramePose(frame.frame, frame.stamp_ns, None, REASON_FEW_SIGNS, len(distinct))
+        return failed(PoseFailure.FEW_SIGNS)
     reason = _degenerate(_spread(c.world), s)
-    if reason:
-        return FramePose(frame.frame, frame.stamp_ns, None, reason, len(distinct))
+    if reason is not None:
+        return failed(reason)
     normalised = (c.px - [camera.cx, camera.cy]) / [camera.fx, camera.fy]  # K^-1 applied
     T, inliers, reason = pose_from_homography(c.world, normalised, s.ransac_px / camera.fx)
     if T is None:
-        return FramePose(frame.frame, frame.stamp_ns, None, reason, len(distinct))
+        return failed(reason or PoseFailure.HOMOGRAPHY)
     used = tuple(sorted({code for code, ok in zip(c.codes, inliers, strict=True) if ok}))
     rms, depth = _reproject_rms(camera, T, c.world[inliers], c.px[inliers])
     if np.any(depth <= 0):
-        return FramePose(frame.frame, frame.stamp_ns, None, REASON_BEHIND, len(used), used)
-    return FramePose(frame.frame, frame.stamp_ns, T, "", len(used), used, rms)
+        return failed(PoseFailure.BEHIND, used)
+    return FramePose(
+        frame=frame.frame,
+        stamp_ns=frame.stamp_ns,
+        world_T_cam=T,
+        signs_used=len(used),
+        inlier_codes=used,
+        rms_px=rms,
+    )
+
+
+@dataclass(frozen=True)
+class _PnPProblem:
+    """One frame's PnP inputs in OpenCV's layout."""
+
+    c: _Correspondences
+    spread: np.ndarray  # (3,) see _spread
+    K: np.ndarray  # (3, 3)
+    X: np.ndarray  # (N, 1, 3) world points [m]
+    x: np.ndarray  # (N, 1, 2) undistorted pixels
+
+    @property
+    def dist(self) -> np.ndarray:
+        return np.zeros(5)  # pixels are undistorted already
+
+
+def _warm_candidate(
+    p: _PnPProblem, camera: CameraModel, prior_world_T_cam: np.ndarray, s: PerFrameSettings
+) -> tuple[tuple[np.ndarray, np.ndarray] | None, bool]:
+    """LM from the prior on all points: (rvec, tvec) or None, and whether it is the answer.
+
+    When every point then reprojects within the RANSAC threshold, RANSAC would
+    keep them all and end in the same LM refinement, so it is skipped (~10x
+    cheaper). Only with several signs: one or two nearly coplanar signs have a
+    second, mirrored minimum that LM from a distant prior can fall into.
+    """
+    warm = _warm_start(p.X, p.x, p.K, p.dist, prior_world_T_cam)
+    if warm is None:
+        return None, False
+    rvec, tvec = warm
+    T = _pose_from_rt(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
+    err, depth = _reproject_errors(camera, T, p.c.world, p.c.px)
+    accept = (
+        len(set(p.c.codes)) >= s.warm_start_min_signs
+        and np.linalg.norm(T[:3, 3] - prior_world_T_cam[:3, 3]) < s.warm_start_max_move_m
+        and np.all(depth > 0)
+        and np.all(np.isfinite(err))
+        and err.max() < s.ransac_px
+    )
+    return warm, bool(accept)
+
+
+def _cold_candidates(
+    p: _PnPProblem, s: PerFrameSettings
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+    """RANSAC SQPnP (six points or more), else IPPE (planar) or SQPnP: candidates and inliers."""
+    n = len(p.c.world)
+    inliers = np.ones(n, bool)
+    candidates: list[tuple[np.ndarray, np.ndarray]] = []
+    try:
+        if s.pnp_ransac and n >= 6:
+            ok, rvec, tvec, idx = cv2.solvePnPRansac(
+                p.X, p.x, p.K, p.dist, reprojectionError=s.ransac_px, flags=cv2.SOLVEPNP_SQPNP
+            )
+            if ok and idx is not None and len(idx) >= 4:
+                inliers = np.zeros(n, bool)
+                inliers[idx.reshape(-1)] = True
+                return [(rvec, tvec)], inliers
+        if p.spread[2] < s.planar_tol_m:  # planar
+            k, rvecs, tvecs, _ = cv2.solvePnPGeneric(p.X, p.x, p.K, p.dist, flags=cv2.SOLVEPNP_IPPE)
+            candidates += list(zip(rvecs, tvecs, strict=False))[:k]
+        else:
+            ok, rvec, tvec = cv2.solvePnP(p.X, p.x, p.K, p.dist, flags=cv2.SOLVEPNP_SQPNP)
+            if ok:
+                candidates.append((rvec, tvec))
+    except cv2.error:
+        pass
+    return candidates, inliers
+
+
+def _best_refined(
+    p: _PnPProblem,
+    camera: CameraModel,
+    candidates: list[tuple[np.ndarray, np.ndarray]],
+    inliers: np.ndarray,
+) -> tuple[np.ndarray, float] | None:
+    """The candidate with the lowest inlier RMS after LM refinement: (world_T_cam, rms_px)."""
+    best = None
+    for rvec0, tvec0 in candidates:
+        rvec = np.asarray(rvec0, dtype=float).reshape(3, 1).copy()
+        tvec = np.asarray(tvec0, dtype=float).reshape(3, 1).copy()
+        with contextlib.suppress(cv2.error):
+            rvec, tvec = cv2.solvePnPRefineLM(p.X[inliers], p.x[inliers], p.K, p.dist, rvec, tvec)
+        if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            continue
+        T = _pose_from_rt(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
+        rms, depth = _reproject_rms(camera, T, p.c.world[inliers], p.c.px[inliers])
+        if np.any(depth <= 0) or not np.isfinite(rms):
+            continue
+        if best is None or rms < best[1]:
+            best = (T, rms)
+    return best
 
 
 def solve_frame_pnp(
@@ -343,81 +456,42 @@ def solve_frame_pnp(
     s = settings or PerFrameSettings()
     f = frame_obs
     c = _correspondences(f, sign_map, camera, all_keypoints=True)
-    distinct = sorted(set(c.codes))
+    distinct = tuple(sorted(set(c.codes)))
+
+    def posed(T: np.ndarray | None, used: tuple[str, ...], **kw) -> FramePose:
+        return FramePose(
+            frame=f.frame,
+            stamp_ns=f.stamp_ns,
+            world_T_cam=T,
+            signs_used=len(used),
+            inlier_codes=used if T is not None else (),
+            **kw,
+        )
+
     if len(c.world) < 4:
-        return FramePose(f.frame, f.stamp_ns, None, REASON_FEW_POINTS, len(distinct))
+        return posed(None, distinct, reason=PoseFailure.FEW_POINTS)
     spread = _spread(c.world)
     reason = _degenerate(spread, s)
-    if reason:
-        return FramePose(f.frame, f.stamp_ns, None, reason, len(distinct))
-    K = camera.K.astype(float)
-    dist = np.zeros(5)
-    X = c.world.reshape(-1, 1, 3)
-    x = c.px.reshape(-1, 1, 2)
-    inliers = np.ones(len(c.world), bool)
+    if reason is not None:
+        return posed(None, distinct, reason=reason)
+    p = _PnPProblem(
+        c, spread, camera.K.astype(float), c.world.reshape(-1, 1, 3), c.px.reshape(-1, 1, 2)
+    )
     candidates: list[tuple[np.ndarray, np.ndarray]] = []
     if prior_world_T_cam is not None:
-        # Warm start: LM from the prior on all points. When every point then
-        # reprojects within the RANSAC threshold, RANSAC would keep them all and
-        # end in the same LM refinement, so it is skipped (~10x cheaper). Only
-        # with several signs: one or two nearly coplanar signs have a second,
-        # mirrored minimum that LM from a distant prior can fall into.
-        warm = _warm_start(X, x, K, dist, prior_world_T_cam)
+        warm, accept = _warm_candidate(p, camera, prior_world_T_cam, s)
+        if accept:
+            T = _pose_from_rt(cv2.Rodrigues(warm[0])[0], warm[1].reshape(3))
+            rms, _ = _reproject_rms(camera, T, c.world, c.px)
+            return posed(T, distinct, rms_px=rms)
         if warm is not None:
-            rvec, tvec = warm
-            T = _pose_from_rt(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
-            err, depth = _reproject_errors(camera, T, c.world, c.px)
-            if (
-                len(distinct) >= s.warm_start_min_signs
-                and np.linalg.norm(T[:3, 3] - prior_world_T_cam[:3, 3]) < s.warm_start_max_move_m
-                and np.all(depth > 0)
-                and np.all(np.isfinite(err))
-                and err.max() < s.ransac_px
-            ):
-                used = tuple(distinct)
-                rms = float(np.sqrt(np.mean(err**2)))
-                return FramePose(f.frame, f.stamp_ns, T, "", len(used), used, rms)
-            candidates.append((rvec, tvec))
-    try:
-        ransac_ok = False
-        if s.pnp_ransac and len(c.world) >= 6:
-            ok, rvec, tvec, idx = cv2.solvePnPRansac(
-                X, x, K, dist, reprojectionError=s.ransac_px, flags=cv2.SOLVEPNP_SQPNP
-            )
-            if ok and idx is not None and len(idx) >= 4:
-                inliers = np.zeros(len(c.world), bool)
-                inliers[idx.reshape(-1)] = True
-                candidates.append((rvec, tvec))
-                ransac_ok = True
-        if not ransac_ok:
-            if spread[2] < s.planar_tol_m:  # planar
-                n, rvecs, tvecs, _ = cv2.solvePnPGeneric(X, x, K, dist, flags=cv2.SOLVEPNP_IPPE)
-                candidates += list(zip(rvecs, tvecs, strict=False))[:n]
-            else:
-                ok, rvec, tvec = cv2.solvePnP(X, x, K, dist, flags=cv2.SOLVEPNP_SQPNP)
-                if ok:
-                    candidates.append((rvec, tvec))
-    except cv2.error:
-        pass
-    best = None
-    for rvec, tvec in candidates:
-        rvec = np.asarray(rvec, dtype=float).reshape(3, 1).copy()
-        tvec = np.asarray(tvec, dtype=float).reshape(3, 1).copy()
-        with contextlib.suppress(cv2.error):
-            rvec, tvec = cv2.solvePnPRefineLM(X[inliers], x[inliers], K, dist, rvec, tvec)
-        if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
-            continue
-        R, _ = cv2.Rodrigues(rvec)
-        T = _pose_from_rt(R, tvec.reshape(3))
-        rms, depth = _reproject_rms(camera, T, c.world[inliers], c.px[inliers])
-        if np.any(depth <= 0) or not np.isfinite(rms):
-            continue
-        if best is None or rms < best[1]:
-            best = (T, rms)
+            candidates.append(warm)
+    cold, inliers = _cold_candidates(p, s)
+    best = _best_refined(p, camera, candidates + cold, inliers)
     if best is None:
-        return FramePose(f.frame, f.stamp_ns, None, REASON_PNP, len(distinct))
+        return posed(None, distinct, reason=PoseFailure.PNP)
     used = tuple(sorted({code for code, ok in zip(c.codes, inliers, strict=True) if ok}))
-    return FramePose(f.frame, f.stamp_ns, best[0], "", len(used), used, best[1])
+    return posed(best[0], used, rms_px=best[1])
 
 
 def run_per_frame(
@@ -429,8 +503,6 @@ def run_per_frame(
     progress: bool = False,
 ) -> list[FramePose]:
     """Run ``"baseline"`` (with the speed gate) or ``"pnp"`` (chained priors) over a flight."""
-    from tqdm import tqdm
-
     s = settings or PerFrameSettings()
     out: list[FramePose] = []
     it = tqdm(frames, desc=method, unit="frame", disable=not progress, leave=False)

@@ -27,22 +27,20 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
+from tqdm import tqdm
 
 log = logging.getLogger(__name__)
 
 RANDOM_WALK = "random-walk"
 CONSTANT_VELOCITY = "constant-velocity"
 MOTION_MODELS = (RANDOM_WALK, CONSTANT_VELOCITY)
-
-STATUS_OK = "ok"
-STATUS_BRIDGED = "bridged: no sign seen, pose from the motion prior"
 
 
 def X(i: int) -> int:
@@ -214,8 +212,10 @@ class SmootherResult:
         causal_world_T_cam: (N, 4, 4) iSAM2's estimate of each frame right
             after it was added (the filter result), or None for batch.
         seconds: solve time [s] (graph building and optimisation).
+        build_seconds: of which building the graph [s] (batch; 0 for iSAM2).
         sigma_seconds: time spent on marginals [s].
         per_frame_ms: (N,) iSAM2 update time per frame [ms], or None.
+        per_frame_cpu_ms: (N,) iSAM2 CPU time per frame [ms], or None.
         iterations: LM iterations (batch) or 0.
         final_error: graph error at the solution.
     """
@@ -227,11 +227,12 @@ class SmootherResult:
     landmarks_world: np.ndarray
     causal_world_T_cam: np.ndarray | None = None
     seconds: float = 0.0
+    build_seconds: float = 0.0
     sigma_seconds: float = 0.0
     per_frame_ms: np.ndarray | None = None
+    per_frame_cpu_ms: np.ndarray | None = None
     iterations: int = 0
     final_error: float = float("nan")
-    extra: dict = field(default_factory=dict)
 
 
 def _calibration(camera: CameraModel) -> gtsam.Cal3_S2:
@@ -478,18 +479,16 @@ def smooth_batch(
         sigma_seconds = time.perf_counter() - t1
     observed, signs = _observed_and_signs(meas)
     return SmootherResult(
-        poses,
-        sigma,
-        observed,
-        signs,
-        lms,
-        None,
-        seconds,
-        sigma_seconds,
-        None,
-        int(opt.iterations()),
-        float(graph.error(result)),
-        {"build_s": t_build, "optimize_s": seconds - t_build},
+        world_T_cam=poses,
+        sigma_xyz=sigma,
+        observed=observed,
+        signs_used=signs,
+        landmarks_world=lms,
+        seconds=seconds,
+        build_seconds=t_build,
+        sigma_seconds=sigma_seconds,
+        iterations=int(opt.iterations()),
+        final_error=float(graph.error(result)),
     )
 
 
@@ -588,6 +587,170 @@ def batch_sigmas(
     return sigma
 
 
+def _isam2_params(s: SmootherSettings) -> gtsam.ISAM2Params:
+    """The running iSAM2's parameters."""
+    p = gtsam.ISAM2Params()
+    p.setRelinearizeThreshold(s.isam_relinearize_threshold)
+    p.relinearizeSkip = s.isam_relinearize_skip
+    # Every frame sees the same landmarks, so each update nudges all poses a
+    # little; the partial check and a coarser wildfire threshold keep the
+    # relinearisation check and back-substitution near the top of the tree
+    # instead of walking the whole flight every frame.
+    p.enablePartialRelinearizationCheck = True
+    gn = gtsam.ISAM2GaussNewtonParams()
+    gn.setWildfireThreshold(s.isam_wildfire)
+    p.setOptimizationParams(gn)
+    return p
+
+
+class _Isam2Run:
+    """The state of one incremental solve: iSAM2, the current landmark copies, the last estimate."""
+
+    def __init__(self, b: _GraphBuilder, default_world_T_cam: np.ndarray):
+        s = b.s
+        self.b = b
+        self.s = s
+        self.isam = gtsam.ISAM2(_isam2_params(s))
+        self.n_lm = len(b.m.landmark_code)
+        self.cv = s.motion == CONSTANT_VELOCITY
+        self.lm_keys = [L(j) for j in range(self.n_lm)]  # the current copy of each landmark
+        self.added_lm: set[int] = set()
+        self.bias_key = BIAS_KEY
+        self.segment = 0
+        self.tie_point = gtsam.noiseModel.Isotropic.Sigma(3, s.isam_copy_sigma)
+        self.tie_bias = gtsam.noiseModel.Isotropic.Sigma(6, s.isam_copy_sigma)
+        self.default = gtsam.Pose3(default_world_T_cam)
+        self.prev_pose: gtsam.Pose3 | None = None
+        self.prev_vel = np.zeros(3)
+
+    def _new_segment(self, i: int, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
+        """Fresh copies of the landmarks seen so far (and of the bias), tied to the old ones."""
+        seg_len = int(self.s.isam_segment_frames)
+        if seg_len <= 0 or i == 0 or i // seg_len == self.segment:
+            return
+        self.segment = i // seg_len
+        for j in sorted(self.added_lm):
+            new_key = gtsam.symbol("m", self.segment * self.n_lm + j)
+            values.insert(new_key, self.isam.calculateEstimatePoint3(self.lm_keys[j]))
+            graph.add(
+                gtsam.BetweenFactorPoint3(self.lm_keys[j], new_key, np.zeros(3), self.tie_point)
+            )
+            self.lm_keys[j] = new_key
+        if self.cv:
+            new_bias = gtsam.symbol("c", self.segment)
+            values.insert(new_bias, self.isam.calculateEstimateConstantBias(self.bias_key))
+            graph.add(
+                gtsam.BetweenFactorConstantBias(
+                    self.bias_key, new_bias, gtsam.imuBias.ConstantBias(), self.tie_bias
+                )
+            )
+            self.bias_key = new_bias
+
+    def _initial_guess(self, i: int, init_world_T_cam: np.ndarray | None) -> gtsam.Pose3:
+        """The per-frame pose unless it is far from the motion model's prediction."""
+        predicted = self.prev_pose
+        if predicted is not None and self.cv:
+            predicted = gtsam.Pose3(
+                predicted.rotation(), predicted.translation() + self.prev_vel * self.b.dt(i)
+            )
+        guess = predicted if predicted is not None else self.default
+        if init_world_T_cam is not None:
+            candidate = gtsam.Pose3(init_world_T_cam)
+            # A per-frame pose far from the prediction is a bad start (mis-decoded
+            # signs); the prediction is the better linearisation point then.
+            jump = np.linalg.norm(candidate.translation() - guess.translation())
+            if predicted is None or jump < self.s.isam_init_gate_m:
+                guess = candidate
+        return guess
+
+    def _new_landmarks(self, touched: set[int], graph: gtsam.NonlinearFactorGraph, values):
+        m = self.b.m
+        for j in sorted(touched - self.added_lm):
+            key = L(j) if self.segment == 0 else gtsam.symbol("m", self.segment * self.n_lm + j)
+            self.lm_keys[j] = key
+            noise = gtsam.noiseModel.Isotropic.Sigma(3, float(m.landmark_sigma_m[j]))
+            graph.add(gtsam.PriorFactorPoint3(key, m.landmark_world[j], noise))
+            values.insert(key, m.landmark_world[j])
+            self.added_lm.add(j)
+
+    def _update_params(self, i: int) -> gtsam.ISAM2UpdateParams:
+        """Landmarks (and bias) eliminated last, the new frame just before them."""
+        upd = gtsam.ISAM2UpdateParams()
+        groups = gtsam.KeyGroupMap()
+        for j in self.added_lm:
+            groups.insert2(self.lm_keys[j], 2)
+        if self.cv:
+            groups.insert2(self.bias_key, 2)
+        groups.insert2(X(i), 1)
+        if self.cv:
+            groups.insert2(V(i), 1)
+        upd.constrainedKeys = groups
+        return upd
+
+    def add_frame(self, i: int, init_world_T_cam: np.ndarray | None) -> np.ndarray:
+        """Frame i's variables and factors in one update; returns its (4, 4) causal estimate."""
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        self._new_segment(i, graph, values)
+        guess = self._initial_guess(i, init_world_T_cam)
+        values.insert(X(i), guess)
+        if i == 0:
+            self.b.first_priors(guess, graph)
+            if self.cv:
+                values.insert(BIAS_KEY, gtsam.imuBias.ConstantBias())
+        if self.cv:
+            values.insert(V(i), self.prev_vel)
+        touched = self.b.projection_factors(i, graph, self.lm_keys)
+        self._new_landmarks(touched, graph, values)
+        if i > 0:
+            self.b.motion_factor(i, graph, self.bias_key)
+        if self.s.isam_landmarks_last:
+            self.isam.update(graph, values, self._update_params(i))
+        else:
+            self.isam.update(graph, values)
+        self.prev_pose = self.isam.calculateEstimatePose3(X(i))
+        if self.cv:
+            self.prev_vel = np.asarray(self.isam.calculateEstimateVector(V(i))).reshape(3)
+        return self.prev_pose.matrix()
+
+    def converge(self) -> gtsam.ISAM2:
+        """Converge to the batch solution.
+
+        The running iSAM2 only relinearises variables whose delta exceeds its
+        threshold, which leaves the final estimate centimetres from the optimum;
+        so the final estimate is one more iSAM2 started from the running
+        estimate with every variable relinearised at every step (a few
+        Gauss-Newton steps on the same graph).
+        """
+        final_params = gtsam.ISAM2Params()
+        final_params.setRelinearizeThreshold(0.0)
+        final_params.relinearizeSkip = 1
+        gn0 = gtsam.ISAM2GaussNewtonParams()
+        gn0.setWildfireThreshold(0.0)
+        final_params.setOptimizationParams(gn0)
+        final = gtsam.ISAM2(final_params)
+        final.update(self.isam.getFactorsUnsafe(), self.isam.calculateBestEstimate())
+        last = gtsam.utilities.extractPose3(final.calculateBestEstimate())
+        for _ in range(self.s.isam_final_updates):
+            final.update()
+            now = gtsam.utilities.extractPose3(final.calculateBestEstimate())
+            change = float(np.abs(now - last).max()) if now.size else 0.0
+            last = now
+            if change < 1e-6:
+                break
+        return final
+
+    def landmarks(self, result: gtsam.Values) -> np.ndarray:
+        """(L, 3) the latest copy of every landmark; the survey for landmarks never seen."""
+        m = self.b.m
+        return np.array(
+            [
+                result.atPoint3(self.lm_keys[j]) if j in self.added_lm else m.landmark_world[j]
+                for j in range(self.n_lm)
+            ]
+        ).reshape(-1, 3)
+
+
 def smooth_isam2(
     meas: Measurements,
     stamps_s: np.ndarray,
@@ -603,143 +766,22 @@ def smooth_isam2(
     result to be causal; a frame without one starts at the motion model's
     prediction from the previous estimate.
     """
-    from tqdm import tqdm
-
     s = settings
     t0 = time.perf_counter()
     n = meas.n_frames
-    b = _GraphBuilder(meas, stamps_s, camera, s)
-    p = gtsam.ISAM2Params()
-    p.setRelinearizeThreshold(s.isam_relinearize_threshold)
-    p.relinearizeSkip = s.isam_relinearize_skip
-    # Every frame sees the same landmarks, so each update nudges all poses a
-    # little; the partial check and a coarser wildfire threshold keep the
-    # relinearisation check and back-substitution near the top of the tree
-    # instead of walking the whole flight every frame.
-    p.enablePartialRelinearizationCheck = True
-    gn = gtsam.ISAM2GaussNewtonParams()
-    gn.setWildfireThreshold(s.isam_wildfire)
-    p.setOptimizationParams(gn)
-    isam = gtsam.ISAM2(p)
-    n_lm = len(meas.landmark_code)
-    seg_len = int(s.isam_segment_frames)
-    cv = s.motion == CONSTANT_VELOCITY
-    lm_keys = [L(j) for j in range(n_lm)]  # the current copy of each landmark
-    added_lm: set[int] = set()
-    bias_key = BIAS_KEY
-    segment = 0
-    tie_point = gtsam.noiseModel.Isotropic.Sigma(3, s.isam_copy_sigma)
-    tie_bias = gtsam.noiseModel.Isotropic.Sigma(6, s.isam_copy_sigma)
+    run = _Isam2Run(_GraphBuilder(meas, stamps_s, camera, s), default_world_T_cam)
     causal = np.empty((n, 4, 4))
     per_ms = np.empty(n)
     per_cpu_ms = np.empty(n)
-    prev_pose = None
-    prev_vel = np.zeros(3)
     for i in tqdm(range(n), desc="iSAM2", unit="frame", disable=not progress, leave=False):
         t_frame, c_frame = time.perf_counter(), time.process_time()
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        if seg_len > 0 and i > 0 and i // seg_len != segment:
-            # A new segment: fresh copies of the landmarks seen so far (and of
-            # the bias), tied to the old ones, take this segment's factors.
-            segment = i // seg_len
-            for j in sorted(added_lm):
-                new_key = gtsam.symbol("m", segment * n_lm + j)
-                values.insert(new_key, isam.calculateEstimatePoint3(lm_keys[j]))
-                graph.add(gtsam.BetweenFactorPoint3(lm_keys[j], new_key, np.zeros(3), tie_point))
-                lm_keys[j] = new_key
-            if cv:
-                new_bias = gtsam.symbol("c", segment)
-                values.insert(new_bias, isam.calculateEstimateConstantBias(bias_key))
-                graph.add(
-                    gtsam.BetweenFactorConstantBias(
-                        bias_key, new_bias, gtsam.imuBias.ConstantBias(), tie_bias
-                    )
-                )
-                bias_key = new_bias
-        predicted = None
-        if prev_pose is not None:
-            predicted = prev_pose
-            if cv:
-                predicted = gtsam.Pose3(
-                    prev_pose.rotation(), prev_pose.translation() + prev_vel * b.dt(i)
-                )
-        guess = predicted if predicted is not None else gtsam.Pose3(default_world_T_cam)
-        if init_world_T_cam[i] is not None:
-            candidate = gtsam.Pose3(init_world_T_cam[i])
-            # A per-frame pose far from the prediction is a bad start (mis-decoded
-            # signs); the prediction is the better linearisation point then.
-            jump = np.linalg.norm(candidate.translation() - guess.translation())
-            if predicted is None or jump < s.isam_init_gate_m:
-                guess = candidate
-        values.insert(X(i), guess)
-        if i == 0:
-            b.first_priors(guess, graph)
-            if cv:
-                values.insert(BIAS_KEY, gtsam.imuBias.ConstantBias())
-        if cv:
-            values.insert(V(i), prev_vel)
-        touched = b.projection_factors(i, graph, lm_keys)
-        for j in sorted(touched - added_lm):
-            lm_keys[j] = L(j) if segment == 0 else gtsam.symbol("m", segment * n_lm + j)
-            noise = gtsam.noiseModel.Isotropic.Sigma(3, float(meas.landmark_sigma_m[j]))
-            graph.add(gtsam.PriorFactorPoint3(lm_keys[j], meas.landmark_world[j], noise))
-            values.insert(lm_keys[j], meas.landmark_world[j])
-            added_lm.add(j)
-        if i > 0:
-            b.motion_factor(i, graph, bias_key)
-        if s.isam_landmarks_last:
-            upd = gtsam.ISAM2UpdateParams()
-            groups = gtsam.KeyGroupMap()
-            for j in added_lm:
-                groups.insert2(lm_keys[j], 2)
-            if cv:
-                groups.insert2(bias_key, 2)
-            groups.insert2(X(i), 1)
-            if cv:
-                groups.insert2(V(i), 1)
-            upd.constrainedKeys = groups
-            isam.update(graph, values, upd)
-        else:
-            isam.update(graph, values)
-        prev_pose = isam.calculateEstimatePose3(X(i))
-        if cv:
-            prev_vel = np.asarray(isam.calculateEstimateVector(V(i))).reshape(3)
-        causal[i] = prev_pose.matrix()
+        causal[i] = run.add_frame(i, init_world_T_cam[i])
         per_ms[i] = (time.perf_counter() - t_frame) * 1e3
         per_cpu_ms[i] = (time.process_time() - c_frame) * 1e3
-    # Converge to the batch solution. The running iSAM2 only relinearises
-    # variables whose delta exceeds its threshold, which leaves the final
-    # estimate centimetres from the optimum; so the final estimate is one more
-    # iSAM2 started from the running estimate with every variable relinearised
-    # at every step (a few Gauss-Newton steps on the same graph).
-    final_params = gtsam.ISAM2Params()
-    final_params.setRelinearizeThreshold(0.0)
-    final_params.relinearizeSkip = 1
-    final = gtsam.ISAM2(final_params)
-    gn0 = gtsam.ISAM2GaussNewtonParams()
-    gn0.setWildfireThreshold(0.0)
-    final_params.setOptimizationParams(gn0)
-    final = gtsam.ISAM2(final_params)
-    final.update(isam.getFactorsUnsafe(), isam.calculateBestEstimate())
-    last = gtsam.utilities.extractPose3(final.calculateBestEstimate())
-    for _ in range(s.isam_final_updates):
-        final.update()
-        now = gtsam.utilities.extractPose3(final.calculateBestEstimate())
-        change = float(np.abs(now - last).max()) if now.size else 0.0
-        last = now
-        if change < 1e-6:
-            break
-    isam = final
+    isam = run.converge()
     result = isam.calculateBestEstimate()
     seconds = time.perf_counter() - t0
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
-    lms = np.array(
-        [
-            result.atPoint3(lm_keys[j]) if j in added_lm else meas.landmark_world[j]
-            for j in range(len(meas.landmark_code))
-        ]
-    ).reshape(-1, 3)
     sigma = np.full((n, 3), np.nan)
     sigma_seconds = 0.0
     if _want_sigmas(s, n):
@@ -749,18 +791,17 @@ def smooth_isam2(
         sigma_seconds = time.perf_counter() - t1
     observed, signs = _observed_and_signs(meas)
     return SmootherResult(
-        poses,
-        sigma,
-        observed,
-        signs,
-        lms,
-        causal,
-        seconds,
-        sigma_seconds,
-        per_ms,
-        0,
-        float(isam.getFactorsUnsafe().error(result)),
-        {"per_frame_cpu_ms": per_cpu_ms},
+        world_T_cam=poses,
+        sigma_xyz=sigma,
+        observed=observed,
+        signs_used=signs,
+        landmarks_world=run.landmarks(result),
+        causal_world_T_cam=causal,
+        seconds=seconds,
+        sigma_seconds=sigma_seconds,
+        per_frame_ms=per_ms,
+        per_frame_cpu_ms=per_cpu_ms,
+        final_error=float(isam.getFactorsUnsafe().error(result)),
     )
 
 

@@ -83,14 +83,14 @@ def main(argv=None) -> int:
         batch_s=r.seconds,
         batch_cpu_s=c_batch,
         batch_with_pnp_s=r.seconds + t_pnp,
-        batch_build_s=r.extra["build_s"],
-        batch_optimize_s=r.extra["optimize_s"],
+        batch_build_s=r.build_seconds,
+        batch_optimize_s=(r.seconds - r.build_seconds),
         batch_iterations=r.iterations,
         batch_mae_xyz=err.tolist(),
     )
     print(
-        f"batch LM: {r.seconds:.2f} s, CPU {c_batch:.2f} s (build {r.extra['build_s']:.2f} s, "
-        f"optimise {r.extra['optimize_s']:.2f} s, {r.iterations} iterations); "
+        f"batch LM: {r.seconds:.2f} s, CPU {c_batch:.2f} s (build {r.build_seconds:.2f} s, "
+        f"optimise {(r.seconds - r.build_seconds):.2f} s, {r.iterations} iterations); "
         f"MAE xyz {np.round(err, 4)}"
     )
     print(
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
         sub = collect_measurements(frames[:n], sign_map, camera)
         ri = smooth_isam2(sub, gt.stamps_s[:n], init[:n], camera, settings, default)
         ms = ri.per_frame_ms
-        cpu = ri.extra.get("per_frame_cpu_ms")
+        cpu = ri.per_frame_cpu_ms
         q = np.percentile(ms, [50, 90, 99])
         last = np.median(ms[-min(500, n) :])
         print(

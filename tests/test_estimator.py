@@ -7,15 +7,14 @@ import pytest
 from conftest import estimator_scene
 from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
 from signpose.estimator.perframe import (
-    REASON_COLLINEAR,
-    REASON_FEW_SIGNS,
-    REASON_ONE_SPOT,
     PerFrameSettings,
+    PoseFailure,
     run_per_frame,
     solve_frame_baseline,
     solve_frame_pnp,
 )
-from signpose.estimator.smoother import STATUS_BRIDGED, STATUS_OK, SmootherSettings
+from signpose.estimator.smoother import SmootherSettings
+from signpose.estimator.status import PoseStatus
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map
 
@@ -49,7 +48,7 @@ def test_baseline_needs_four_signs():
     sign_map, camera, frames, _, _ = estimator_scene(n_frames=2)
     f = replace(frames[0], signs=frames[0].signs[:3])
     p = solve_frame_baseline(f, sign_map, camera)
-    assert p.world_T_cam is None and p.reason == REASON_FEW_SIGNS and p.signs_used == 3
+    assert p.world_T_cam is None and p.reason is PoseFailure.FEW_SIGNS and p.signs_used == 3
 
 
 def test_codes_absent_from_map_are_dropped():
@@ -72,7 +71,9 @@ def _line_map(spread: float) -> SignMap:
     return SignMap("line", signs)
 
 
-@pytest.mark.parametrize(("spread", "reason"), [(0.5, REASON_COLLINEAR), (0.001, REASON_ONE_SPOT)])
+@pytest.mark.parametrize(
+    ("spread", "reason"), [(0.5, PoseFailure.COLLINEAR), (0.001, PoseFailure.ONE_SPOT)]
+)
 def test_degenerate_geometry_gives_reason_and_no_nan(spread, reason, tmp_path):
     from signpose.estimator.camera import pinhole_camera
 
@@ -150,10 +151,10 @@ def test_few_signs_get_a_pose_and_empty_frames_are_bridged():
     r = estimate_trajectories(frames, sign_map, camera, s, progress=False)
     base, sm = r.methods["baseline"], r.methods["smoothed"]
     for i in keep:
-        assert not base.valid[i] and base.status[i] == REASON_FEW_SIGNS
-        assert sm.valid[i] and sm.status[i] == STATUS_OK and 1 <= sm.signs_used[i] <= 3
+        assert not base.valid[i] and base.status[i] is PoseFailure.FEW_SIGNS
+        assert sm.valid[i] and sm.status[i] is PoseStatus.OK and 1 <= sm.signs_used[i] <= 3
     for i in (15, 16, 17):
-        assert sm.valid[i] and sm.status[i] == STATUS_BRIDGED and sm.signs_used[i] == 0
+        assert sm.valid[i] and sm.status[i] is PoseStatus.BRIDGED and sm.signs_used[i] == 0
     assert sm.valid.all()
     # Bridged poses stay close to the truth over a 0.1 s gap.
     assert _pos_err(sm.world_T_cam, gt)[[15, 16, 17]].max() < 0.3
@@ -195,7 +196,7 @@ def test_speed_gate_rejects_jump():
     s = PerFrameSettings(max_speed_mps=1.0, gate_slack_m=0.0)
     poses = run_per_frame(frames, sign_map, camera, "baseline", s)
     assert poses[0].world_T_cam is not None
-    assert poses[1].world_T_cam is None and poses[1].reason.startswith("speed gate")
+    assert poses[1].world_T_cam is None and poses[1].reason is PoseFailure.SPEED
 
 
 def test_synthetic_faults_and_off_image_points():

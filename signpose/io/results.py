@@ -8,7 +8,10 @@ trajectory.csv: one row per frame and method, header
 ``method,frame,t,x,y,z,qw,qx,qy,qz,sigma_x,sigma_y,sigma_z,signs_used,status``;
 t in seconds, position of the camera centre in the world [m], rotation
 world_R_cam as a unit quaternion (w first); empty pose/sigma fields where the
-method has no pose or no sigma (never NaN).
+method has no pose or no sigma (never NaN); status is a token: ``ok``,
+``weak``, ``bridged`` or ``suspect`` for a pose (see
+``estimator.status.PoseStatus``), else why there is none (``few_signs``,
+``collinear``, ...: ``estimator.perframe.PoseFailure``).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.estimate import EstimateResult, MethodEstimate
 from signpose.estimator.metrics import compute_metrics, format_table
+from signpose.estimator.status import PoseStatus
 from signpose.estimator.trajectory import Trajectory, quat_xyzw_from_rotation
 from signpose.io.tum import read_tum, write_tum
 
@@ -92,7 +96,7 @@ def _csv_text(result: EstimateResult) -> str:
                 row += [""] * 7
             sig = m.sigma_xyz[i]
             row += [f"{v:.6f}" if (m.valid[i] and np.isfinite(v)) else "" for v in sig]
-            row += [int(m.signs_used[i]), m.status[i]]
+            row += [int(m.signs_used[i]), m.status[i].value]
             w.writerow(row)
     return buf.getvalue()
 
@@ -108,7 +112,7 @@ def report_dict(result: EstimateResult) -> dict:
             "posed": int(m.valid.sum()),
             "coverage": float(m.valid.mean()) if n else 0.0,
             "coverage_of_frames_with_signs": float(m.valid[seen].mean()) if seen.any() else None,
-            "bridged": int(sum(s.startswith("bridged") for s in m.status)),
+            "bridged": int(sum(s is PoseStatus.BRIDGED for s in m.status)),
         }
     o = result.outliers.to_dict()
     o["n_downweighted"] = len(o["downweighted"])

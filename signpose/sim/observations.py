@@ -10,7 +10,7 @@ and false observations at random pixels (false detections).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -18,6 +18,7 @@ from signpose.estimator.camera import CameraModel, pixel_from_world_point
 from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.maps.loader import MapSign, SignMap
+from signpose.sim.trajectories import make_trajectory
 
 
 @dataclass(frozen=True)
@@ -148,8 +149,6 @@ def flatten_map(sign_map: SignMap, offset_m: float = 0.0, rng: np.random.Generat
     Returns:
         A new SignMap.
     """
-    from dataclasses import replace
-
     centers = sign_map.centers_m()
     mean = centers.mean(axis=0)
     _, _, vt = np.linalg.svd(centers - mean)
@@ -180,8 +179,6 @@ def paper_like_frames(
     Returns:
         (observations per frame, ground-truth trajectory, injected faults).
     """
-    from signpose.sim.trajectories import make_trajectory
-
     gt = make_trajectory(
         flight, sign_map, n_frames=n_frames, fps=fps, distance_m=distance_m, seed=seed
     )
@@ -193,8 +190,6 @@ def drop_signs(
     frames: Sequence[FrameObservations], keep: dict[int, int], rng: np.random.Generator
 ) -> list[FrameObservations]:
     """Copies of ``frames`` where frame ``i`` in ``keep`` keeps only ``keep[i]`` random signs."""
-    from dataclasses import replace
-
     out = []
     for f in frames:
         if f.frame in keep and len(f.signs) > keep[f.frame]:
