@@ -12,7 +12,10 @@ import csv
 import logging
 import math
 import os
+import queue
 import re
+import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +24,9 @@ import cv2
 import numpy as np
 
 from signpose.core.errors import InputError
-from signpose.estimator.camera import CameraModel
+from signpose.estimator.camera import CameraModel, check_image_size
+from signpose.io.mcap_read import McapLog
+from signpose.io.messages import camera_from_message, image_from_message, message_stamp_ns
 
 log = logging.getLogger(__name__)
 
@@ -254,10 +259,8 @@ class McapSource(FrameSource):
     kind = "mcap"
 
     def __init__(self, path: Path, topic: str | None = None):
-        from signpose.io import mcap as mcap_io
-
         super().__init__(path)
-        self.log = mcap_io.McapLog(path)
+        self.log = McapLog(path)
         images = self.log.image_channels()
         listed = ", ".join(c.describe() for c in self.log.channels) or "none"
         if topic is not None:
@@ -294,29 +297,25 @@ class McapSource(FrameSource):
             self._problem(self.log.problem)
 
     def _find_camera(self) -> CameraModel | None:
-        from signpose.io import mcap as mcap_io
-
         cams = [c for c in self.log.channels if c.is_camera]
         if not cams:
             return None
         for msg in self.log.messages([cams[0].topic]):
-            return mcap_io.camera_from_message(msg.schema_name, msg.decoded, str(self.path))
+            return camera_from_message(msg.schema_name, msg.decoded, str(self.path))
         return None
 
     def __iter__(self) -> Iterator[Frame]:
-        from signpose.io import mcap as mcap_io
-
         self.problems = []
         index = 0
         last_ns = -1
         for msg in self.log.messages([self.topic]):
-            image, reason = mcap_io.image_from_message(msg.schema_name, msg.decoded)
+            image, reason = image_from_message(msg.schema_name, msg.decoded)
             if image is None:
                 self._problem(
                     f"{self.topic}: message {index + len(self.problems)}: {reason}; skipped"
                 )
                 continue
-            stamp_ns = mcap_io.message_stamp_ns(msg.schema_name, msg.decoded)
+            stamp_ns = message_stamp_ns(msg.schema_name, msg.decoded)
             if stamp_ns is None or stamp_ns == 0:
                 stamp_ns = msg.log_time_ns
             stamp_ns = max(stamp_ns, last_ns + 1)
@@ -370,8 +369,6 @@ def _has_mcap_magic(p: Path) -> bool:
 
 def check_source_camera(source_name: str, camera: CameraModel, image_size: tuple[int, int]) -> None:
     """InputError when the images are not the camera's size (estimator.camera.check_image_size)."""
-    from signpose.estimator.camera import check_image_size
-
     check_image_size(camera, image_size[0], image_size[1], source_name)
 
 
@@ -401,10 +398,6 @@ def prefetch(source: FrameSource, depth: int = 4) -> Iterator[PrefetchedFrame]:
     raised here, in the consumer; closing the generator (or Ctrl-C in the
     consumer) stops the reader.
     """
-    import queue
-    import threading
-    import time
-
     q: queue.Queue = queue.Queue(maxsize=max(1, depth))
     stop = threading.Event()
     done = object()

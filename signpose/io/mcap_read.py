@@ -1,0 +1,204 @@
+"""MCAP logs in: channels and decoded messages, streamed record by record.
+
+Messages are JSON (Foxglove) or ROS 2 CDR (decoded by mcap-ros2-support from
+the schema in the log); what they mean is ``signpose.io.messages``. A
+truncated or corrupt log yields what is readable and then says where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
+from mcap_ros2.decoder import DecoderFactory
+
+from signpose.core.errors import InputError
+from signpose.io.messages import CAMERA_SCHEMAS, IMAGE_SCHEMAS
+
+log = logging.getLogger(__name__)
+
+JSON_ENCODING = "json"
+
+
+@dataclass(frozen=True)
+class McapChannel:
+    """One channel of a log.
+
+    Attributes:
+        topic: channel topic.
+        schema_name: e.g. ``foxglove.CompressedImage``, ``sensor_msgs/msg/Image``.
+        message_encoding: ``json``, ``cdr``, ...
+        message_count: number of messages, or None when the log has no summary.
+    """
+
+    topic: str
+    schema_name: str
+    message_encoding: str
+    message_count: int | None
+
+    @property
+    def is_image(self) -> bool:
+        return self.schema_name in IMAGE_SCHEMAS
+
+    @property
+    def is_camera(self) -> bool:
+        return self.schema_name in CAMERA_SCHEMAS
+
+    def describe(self) -> str:
+        return f"{self.topic} ({self.schema_name or 'no schema'})"
+
+
+@dataclass(frozen=True)
+class McapMessage:
+    """One decoded message: ``decoded`` is a dict (JSON) or a ROS 2 message object."""
+
+    topic: str
+    schema_name: str
+    log_time_ns: int
+    decoded: Any
+
+
+class McapLog:
+    """A streamed MCAP log.
+
+    ``channels`` comes from the summary section, or, for a log without one (e.g.
+    truncated), from a scan of the data. ``messages()`` streams in file order
+    and, when the data stops early, sets ``problem`` to where and why.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise InputError(f"{self.path}: file not found")
+        self.problem: str | None = None
+        self.channels = self._read_channels()
+
+    # ------------------------------------------------------------------ channels
+    def _read_channels(self) -> tuple[McapChannel, ...]:
+        try:
+            with open(self.path, "rb") as f:
+                summary = make_reader(f).get_summary()
+        except Exception:  # noqa: BLE001 - any failure: fall back to scanning the data
+            summary = None
+        if summary is not None and summary.channels:
+            counts = summary.statistics.channel_message_counts if summary.statistics else {}
+            return tuple(
+                McapChannel(
+                    c.topic,
+                    summary.schemas[c.schema_id].name if c.schema_id in summary.schemas else "",
+                    c.message_encoding,
+                    counts.get(c.id) if summary.statistics else None,
+                )
+                for c in sorted(summary.channels.values(), key=lambda c: c.id)
+            )
+        counts: dict[int, int] = {}
+        channels: dict[int, Any] = {}
+        schemas: dict[int, Any] = {}
+        for record in self._records(count_into=counts):
+            kind = type(record).__name__
+            if kind == "Schema":
+                schemas[record.id] = record
+            elif kind == "Channel":
+                channels[record.id] = record
+        scan_problem = self.problem
+        self.problem = None
+        if not channels and scan_problem:
+            raise InputError(f"{self.path}: not a readable MCAP log ({scan_problem})")
+        return tuple(
+            McapChannel(
+                c.topic,
+                schemas[c.schema_id].name if c.schema_id in schemas else "",
+                c.message_encoding,
+                counts.get(c.id, 0) if scan_problem is None else None,
+            )
+            for c in sorted(channels.values(), key=lambda c: c.id)
+        )
+
+    def channel(self, topic: str) -> McapChannel | None:
+        for c in self.channels:
+            if c.topic == topic:
+                return c
+        return None
+
+    def image_channels(self) -> list[McapChannel]:
+        return [c for c in self.channels if c.is_image]
+
+    # ------------------------------------------------------------------ records
+    def _records(self, count_into: dict[int, int] | None = None) -> Iterator[Any]:
+        with open(self.path, "rb") as f:
+            reader = StreamReader(f, record_size_limit=1 << 30)
+            n_messages = 0
+            try:
+                for record in reader.records:
+                    kind = type(record).__name__
+                    if kind == "Message":
+                        n_messages += 1
+                        if count_into is not None:
+                            count_into[record.channel_id] = count_into.get(record.channel_id, 0) + 1
+                    yield record
+                    if kind == "Footer":
+                        return
+            except Exception as exc:  # noqa: BLE001 - corrupt data: stop and say where
+                size = self.path.stat().st_size
+                at = min(f.tell(), size)
+                reason = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+                reason = f"{type(exc).__name__}: {reason}" if reason else type(exc).__name__
+                self.problem = (
+                    f"log stopped after {n_messages} messages, near byte {at} of {size} "
+                    f"({reason}); the file is truncated or corrupt"
+                )
+
+    def messages(self, topics: Iterable[str]) -> Iterator[McapMessage]:
+        """Decoded messages of ``topics`` in file order (log order for signpose's logs)."""
+        wanted = set(topics)
+        ros2 = DecoderFactory()
+        schemas: dict[int, Any] = {}
+        channels: dict[int, Any] = {}
+        decoders: dict[int, Any] = {}
+        self.problem = None
+        for record in self._records():
+            kind = type(record).__name__
+            if kind == "Schema":
+                schemas[record.id] = record
+            elif kind == "Channel":
+                channels[record.id] = record
+            elif kind == "Message":
+                ch = channels.get(record.channel_id)
+                if ch is None or ch.topic not in wanted:
+                    continue
+                sch = schemas.get(ch.schema_id)
+                name = sch.name if sch is not None else ""
+                decoder = decoders.get(ch.id)
+                if decoder is None:
+                    decoder = _decoder_for(ch, sch, ros2, self.path)
+                    decoders[ch.id] = decoder
+                try:
+                    decoded = decoder(record.data)
+                except Exception as exc:  # noqa: BLE001 - one bad message is a value
+                    log.warning("%s: %s: cannot decode a message (%s)", self.path, ch.topic, exc)
+                    continue
+                yield McapMessage(ch.topic, name, int(record.log_time), decoded)
+
+
+def _decoder_for(channel, schema_record, ros2_factory, path: Path):
+    if channel.message_encoding == JSON_ENCODING:
+        return lambda data: json.loads(data)
+    decoder = ros2_factory.decoder_for(channel.message_encoding, schema_record)
+    if decoder is None:
+        raise InputError(
+            f"{path}: topic {channel.topic}: cannot decode message encoding "
+            f"'{channel.message_encoding}' (supported: json, ROS 2 cdr)"
+        )
+    return decoder
+
+
+def read_json_messages(path: str | os.PathLike, topic: str) -> list[dict]:
+    """All JSON messages of ``topic`` (for tests and tools)."""
+    return [m.decoded for m in McapLog(path).messages([topic])]

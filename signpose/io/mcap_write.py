@@ -1,0 +1,273 @@
+"""MCAP logs out: signpose's writer, the simulator's flight log and result.mcap.
+
+Files hold JSON-encoded Foxglove messages (``signpose.io.foxglove`` builds
+them and ships their schemas) and appear atomically on close.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+from mcap.writer import Writer
+from tqdm import tqdm
+
+from signpose.core.errors import OutputError
+from signpose.core.fileio import atomic_path
+from signpose.estimator.camera import CameraModel
+from signpose.estimator.trajectory import Trajectory
+from signpose.frontend.observations import FrameObservations
+from signpose.io.foxglove import (
+    CAMERA_FRAME,
+    camera_calibration,
+    compressed_image,
+    frame_transforms,
+    image_annotations,
+    pose_in_frame,
+    scene_update,
+    schema_text,
+)
+from signpose.maps.loader import SignMap
+
+JSON_ENCODING = "json"
+
+# Topics of signpose's own logs.
+IMAGE_TOPIC = "/camera/image/compressed"
+CALIBRATION_TOPIC = "/camera/calibration"
+GROUNDTRUTH_TOPIC = "/groundtruth/pose"
+ANNOTATIONS_TOPIC = "/signpose/detections"
+SCENE_TOPIC = "/signpose/scene"
+TF_TOPIC = "/tf"
+
+
+class McapJsonWriter:
+    """Writes JSON-encoded Foxglove messages to an MCAP file, atomically.
+
+    The file appears at ``path`` only on ``close()``; ``abort()`` (or an
+    exception inside ``with``) removes the partial file.
+    """
+
+    def __init__(self, path: str | os.PathLike, chunk_size: int = 256 * 1024):
+        self.path = Path(path)
+        self._stack = contextlib.ExitStack()
+        self._tmp = self._stack.enter_context(atomic_path(self.path))
+        try:
+            self._file = open(self._tmp, "wb")  # noqa: SIM115 - closed in close()/abort()
+        except OSError as exc:
+            self._stack.__exit__(type(exc), exc, None)
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror})") from None
+        self._writer = Writer(self._file, chunk_size=chunk_size)
+        self._writer.start(profile="", library="signpose")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._sequence = 0
+        self._open = True
+
+    def _channel(self, topic: str, schema_name: str) -> int:
+        channel_id = self._channels.get(topic)
+        if channel_id is None:
+            schema_id = self._schemas.get(schema_name)
+            if schema_id is None:
+                schema_id = self._writer.register_schema(
+                    f"foxglove.{schema_name}", "jsonschema", schema_text(schema_name).encode()
+                )
+                self._schemas[schema_name] = schema_id
+            channel_id = self._writer.register_channel(topic, JSON_ENCODING, schema_id)
+            self._channels[topic] = channel_id
+        return channel_id
+
+    def write(self, topic: str, schema_name: str, message: dict, log_time_ns: int) -> None:
+        """Append one message; ``schema_name`` without the ``foxglove.`` prefix."""
+        channel_id = self._channel(topic, schema_name)
+        data = json.dumps(message, separators=(",", ":")).encode()
+        t = max(0, int(log_time_ns))
+        self._writer.add_message(channel_id, t, data, t, self._sequence)
+        self._sequence += 1
+
+    def close(self) -> None:
+        """Finish the file and move it into place."""
+        if not self._open:
+            return
+        self._open = False
+        try:
+            self._writer.finish()
+            self._file.close()
+        except BaseException as exc:
+            self._file.close()
+            self._stack.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        self._stack.close()
+
+    def abort(self) -> None:
+        """Drop the partial file."""
+        if not self._open:
+            return
+        self._open = False
+        self._file.close()
+        self._stack.__exit__(KeyboardInterrupt, KeyboardInterrupt(), None)
+
+    def __enter__(self) -> McapJsonWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+class McapFrameWriter:
+    """The simulator's ``--format mcap`` output: images, ground truth and the camera.
+
+    Implements ``signpose.sim.flight.FrameWriter``. Topics: ``/camera/image/compressed``
+    (foxglove.CompressedImage, JPEG), ``/camera/calibration`` (foxglove.CameraCalibration,
+    once, before the first image), and, when the true poses are given,
+    ``/groundtruth/pose`` (foxglove.PoseInFrame, world_T_cam) and ``/tf``
+    (foxglove.FrameTransforms world -> camera).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        camera: CameraModel,
+        world_frame: str = "world",
+        world_T_cams: np.ndarray | None = None,
+        jpeg_quality: int = 90,
+        chunk_size: int = 256 * 1024,
+    ):
+        """Args:
+        path: the ``.mcap`` to write (appears on ``close()``).
+        camera: the camera of the images.
+        world_frame: name of the world frame (the map's ``frame``).
+        world_T_cams: (N, 4, 4) true camera pose of frame i, or None.
+        jpeg_quality: JPEG quality of the images.
+        chunk_size: MCAP chunk size [bytes]; small chunks lose less to truncation.
+        """
+        self._writer = McapJsonWriter(path, chunk_size=chunk_size)
+        self.path = self._writer.path
+        self.camera = camera
+        self.world_frame = world_frame
+        self.world_T_cams = None if world_T_cams is None else np.asarray(world_T_cams, float)
+        self.jpeg_quality = jpeg_quality
+        self._calibrated = False
+        self.frames_written = 0
+
+    def write(self, frame_index: int, stamp_ns: int, bgr: np.ndarray) -> None:
+        """One frame: (H, W, 3) BGR or (H, W) gray image at ``stamp_ns``."""
+        if not self._calibrated:
+            self._writer.write(
+                CALIBRATION_TOPIC,
+                "CameraCalibration",
+                camera_calibration(stamp_ns, self.camera),
+                stamp_ns,
+            )
+            self._calibrated = True
+        msg = compressed_image(stamp_ns, bgr, quality=self.jpeg_quality)
+        self._writer.write(IMAGE_TOPIC, "CompressedImage", msg, stamp_ns)
+        poses = self.world_T_cams
+        if poses is not None and 0 <= frame_index < len(poses):
+            T = poses[frame_index]
+            self._writer.write(
+                GROUNDTRUTH_TOPIC,
+                "PoseInFrame",
+                pose_in_frame(stamp_ns, self.world_frame, T),
+                stamp_ns,
+            )
+            self._writer.write(
+                TF_TOPIC,
+                "FrameTransforms",
+                frame_transforms(stamp_ns, self.world_frame, CAMERA_FRAME, T),
+                stamp_ns,
+            )
+        self.frames_written += 1
+
+    def close(self) -> Path:
+        self._writer.close()
+        return self.path
+
+    def abort(self) -> None:
+        self._writer.abort()
+
+    def __enter__(self) -> McapFrameWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def write_result_mcap(
+    path: str | os.PathLike,
+    sign_map: SignMap,
+    frames: list[FrameObservations],
+    trajectories: dict[str, Trajectory],
+    camera: CameraModel | None = None,
+    images: Iterable[tuple[int, np.ndarray]] | None = None,
+    jpeg_quality: int = 85,
+    progress: bool = False,
+) -> None:
+    """The result log for Foxglove, written atomically.
+
+    Args:
+        path: output ``.mcap``.
+        sign_map: the signs (scene) and the world frame name.
+        frames: the observations per frame (image annotations).
+        trajectories: method name -> estimated world_T_cam per stamp; each gets
+            ``/signpose/<method>/pose``; the first one named ``smoothed`` (else
+            the first) drives ``/tf`` world -> camera. NaN positions are skipped.
+        camera: written once as foxglove.CameraCalibration when given.
+        images: (stamp_ns, image) pairs, written as JPEG foxglove.CompressedImage.
+        jpeg_quality: JPEG quality of the images.
+        progress: show a tqdm bar over frames.
+    """
+
+    world = sign_map.frame
+    t0 = frames[0].stamp_ns if frames else 0
+    tf_name = "smoothed" if "smoothed" in trajectories else next(iter(trajectories), None)
+    by_stamp: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name, traj in trajectories.items():
+        Ts = traj.world_T_cam()
+        ok = np.all(np.isfinite(Ts.reshape(len(Ts), -1)), axis=1)
+        by_stamp[name] = (np.round(traj.stamps_s[ok] * 1e9).astype(np.int64), Ts[ok])
+    image_iter = iter(images) if images is not None else None
+    with McapJsonWriter(path) as writer:
+        writer.write(SCENE_TOPIC, "SceneUpdate", scene_update(t0, sign_map, trajectories), t0)
+        if camera is not None:
+            writer.write(CALIBRATION_TOPIC, "CameraCalibration", camera_calibration(t0, camera), t0)
+        for obs in tqdm(frames, desc="result.mcap", unit="frame", disable=not progress):
+            t = obs.stamp_ns
+            if image_iter is not None:
+                item = next(image_iter, None)
+                if item is not None:
+                    msg = compressed_image(item[0], item[1], quality=jpeg_quality)
+                    writer.write(IMAGE_TOPIC, "CompressedImage", msg, item[0])
+            writer.write(ANNOTATIONS_TOPIC, "ImageAnnotations", image_annotations(obs), t)
+            for name, (stamps_ns, poses) in by_stamp.items():
+                T = _nearest(stamps_ns, poses, t)
+                if T is None:
+                    continue
+                writer.write(f"/signpose/{name}/pose", "PoseInFrame", pose_in_frame(t, world, T), t)
+                if name == tf_name:
+                    writer.write(
+                        TF_TOPIC, "FrameTransforms", frame_transforms(t, world, CAMERA_FRAME, T), t
+                    )
+
+
+def _nearest(stamps_ns: np.ndarray, poses: np.ndarray, stamp_ns: int, tol_ns: int = 1_000_000):
+    """The pose at ``stamp_ns`` (within ``tol_ns``: stamps went through seconds), or None."""
+    if len(stamps_ns) == 0:
+        return None
+    i = int(np.searchsorted(stamps_ns, stamp_ns))
+    best = None
+    for j in (i - 1, i):
+        if 0 <= j < len(stamps_ns):
+            dt = abs(int(stamps_ns[j]) - int(stamp_ns))
+            if dt <= tol_ns and (best is None or dt < best[0]):
+                best = (dt, j)
+    return None if best is None else poses[best[1]]
