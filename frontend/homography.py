@@ -8,6 +8,7 @@ normalised so that ``H[2, 2] == 1`` where possible.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -65,9 +66,9 @@ def fit_homography(
         prepared = prepare_source(src)
     n, s, a, ts, flags = prepared
     dst = np.asarray(dst, float)
-    cd = np.add.reduce(dst, axis=0) / n  # dst.mean(axis=0) without its Python wrapper
+    cd = dst.mean(axis=0)
     d = dst - cd
-    kd = math.sqrt(2.0 * n / max(float(np.add.reduce((d * d).ravel())), 1e-24))
+    kd = math.sqrt(2.0 * n / max(float((d * d).sum()), 1e-24))
     d *= kd
     a = a.copy()
     a[0::2, 6:8] = -d[:, :1] * s
@@ -75,7 +76,7 @@ def fit_homography(
     ok, x = cv2.solve(a, d.reshape(-1, 1), flags=flags)
     if not ok:
         return None
-    hn = np.concatenate((x.ravel(), _ONE)).reshape(3, 3)
+    hn = np.append(x.ravel(), 1.0).reshape(3, 3)
     cu, cv = cd.tolist()
     td_inv = np.array([[1.0 / kd, 0.0, cu], [0.0, 1.0 / kd, cv], [0.0, 0.0, 1.0]])
     h = td_inv @ hn @ ts
@@ -83,9 +84,6 @@ def fit_homography(
     if not np.isfinite(h).all() or abs(h22) < 1e-12:
         return None
     return h / h22
-
-
-_ONE = np.ones(1)
 
 
 def affine_design(src: np.ndarray) -> np.ndarray:
@@ -113,31 +111,30 @@ def fit_affine(
     return h
 
 
+@functools.cache
+def _next_vertex(m: int) -> np.ndarray:
+    """Index of each vertex's successor in an m-gon (np.roll costs 3x more per call)."""
+    return np.arange(1, m + 1) % m
+
+
 def polygon_centroids(polys: np.ndarray) -> np.ndarray:
     """Area centroids of (K, M, 2) polygons; returns (K, 2)."""
     x, y = polys[..., 0], polys[..., 1]
-    m = x.shape[1]
-    nxt = _NEXT.get(m)
-    if nxt is None:
-        nxt = _NEXT[m] = np.arange(1, m + 1) % m
+    nxt = _next_vertex(x.shape[1])
     xn, yn = x[:, nxt], y[:, nxt]
-    cross = x * yn - xn * y
-    area6 = 6.0 * (np.add.reduce(cross, axis=1) / 2.0)
-    out = np.empty((len(x), 2))
-    out[:, 0] = np.add.reduce((x + xn) * cross, axis=1) / area6
-    out[:, 1] = np.add.reduce((y + yn) * cross, axis=1) / area6
-    return out
-
-
-_NEXT: dict[int, np.ndarray] = {}  # vertex index -> next vertex index, per vertex count
+    cross = x * yn - xn * y  # (K, M): twice the signed area of each edge's triangle
+    area6 = 3.0 * cross.sum(axis=1)
+    return (
+        np.stack([((x + xn) * cross).sum(axis=1), ((y + yn) * cross).sum(axis=1)], axis=1)
+        / (area6[:, None])
+    )
 
 
 def ellipse_from_conic(c: np.ndarray) -> Ellipse:
     """Centre, full axes (major, minor) and angle [deg] of the ellipse x^T c x = 0.
 
     Angle: of the major axis, from the u axis toward +v, in [0, 180)
-    (cv2.RotatedRect convention, axes given major first). Closed form: the
-    2x2 algebra is cheaper in plain floats than through numpy.linalg.
+    (cv2.RotatedRect convention, axes given major first), in closed form.
 
     Raises:
         ValueError: the conic is not a real ellipse (e.g. the image of a disc
@@ -145,11 +142,6 @@ def ellipse_from_conic(c: np.ndarray) -> Ellipse:
     """
     a, b, d = float(c[0, 0]), float(c[0, 1]), float(c[1, 1])
     e, f, g = float(c[0, 2]), float(c[1, 2]), float(c[2, 2])
-    return _ellipse_from_coeffs(a, b, d, e, f, g)
-
-
-def _ellipse_from_coeffs(a: float, b: float, d: float, e: float, f: float, g: float) -> Ellipse:
-    """``ellipse_from_conic`` of [[a, b, e], [b, d, f], [e, f, g]]."""
     det = a * d - b * b
     if det <= 0:
         raise ValueError("conic is not an ellipse")
@@ -170,15 +162,5 @@ def disc_ellipse(image_H_sign: np.ndarray, diameter: float) -> Ellipse:
     """Exact image of the rim of a disc of ``diameter`` centred at the sign origin."""
     r = diameter / 2.0
     _, hinv = cv2.invert(np.asarray(image_H_sign, dtype=np.float64))
-    # hinv^T diag(1, 1, -r^2) hinv, in plain floats (a 3x3 product).
-    (p0, p1, p2), (q0, q1, q2), (s0, s1, s2) = hinv.tolist()
-    w = -r * r
-    t0, t1, t2 = s0 * w, s1 * w, s2 * w
-    return _ellipse_from_coeffs(
-        p0 * p0 + q0 * q0 + t0 * s0,
-        p0 * p1 + q0 * q1 + t0 * s1,
-        p1 * p1 + q1 * q1 + t1 * s1,
-        p0 * p2 + q0 * q2 + t0 * s2,
-        p1 * p2 + q1 * q2 + t1 * s2,
-        p2 * p2 + q2 * q2 + t2 * s2,
-    )
+    # The rim x^2 + y^2 = r^2 as a conic, carried to the image.
+    return ellipse_from_conic(hinv.T @ (np.array([[1.0], [1.0], [-r * r]]) * hinv))
