@@ -1,7 +1,7 @@
 """Benchmark the flight simulator: frames/s and total seconds on one core.
 
 Usage:
-    OMP_NUM_THREADS=1 .venv/bin/python scripts/bench_simulate.py [--frames 210]
+    OMP_NUM_THREADS=1 .venv/bin/python scripts/bench_simulate.py [--frames 210] [--json FILE]
 
 Target (issue 2): 210 frames at 1920x1080 in under 60 s on one core, with
 everything on (background, blur, noise, JPEG round trip, mp4 output).
@@ -10,6 +10,7 @@ everything on (background, blur, noise, JPEG round trip, mp4 output).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
@@ -20,6 +21,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import cv2  # noqa: E402
 from signpose.maps.loader import bundled_map_path, load_map  # noqa: E402
 
+from signpose.core.fileio import atomic_write  # noqa: E402
 from signpose.sim.flight import FORMATS, SimSettings, simulate  # noqa: E402
 
 
@@ -31,6 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--format", choices=FORMATS, default="mp4")
     parser.add_argument("--dirt", action="store_true")
     parser.add_argument("--occlusion", action="store_true")
+    parser.add_argument("--json", help="also write the numbers to this JSON file")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
     sign_map = load_map(bundled_map_path())
@@ -56,6 +59,23 @@ def main(argv: list[str] | None = None) -> int:
     print(f"total {total:.1f} s, {result.n_frames / total:.2f} frames/s, output {size_mb:.1f} MB")
     # Wall time depends on what else the machine runs; CPU time of this process does not.
     print(f"cpu {cpu:.1f} s ({result.n_frames / cpu:.2f} frames per cpu-second)")
+    if args.json:
+        out = {
+            "frames": result.n_frames,
+            "width": args.width,
+            "height": args.height,
+            "format": args.format,
+            "dirt": args.dirt,
+            "occlusion": args.occlusion,
+            "wall_s": round(total, 3),
+            "cpu_s": round(cpu, 3),
+            "frames_per_s": round(result.n_frames / total, 3),
+            "frames_per_cpu_s": round(result.n_frames / cpu, 3),
+            "output_mb": round(size_mb, 2),
+            "cv2_threads": cv2.getNumThreads(),
+        }
+        with atomic_write(args.json, encoding="utf-8") as f:
+            json.dump(out, f, indent=2)
     return 0
 
 

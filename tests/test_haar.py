@@ -6,8 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from signpose.training import haar
+from signpose.training import adaboost, data, features
 from signpose.training.cascade_xml import read_cascade_xml, write_cascade_xml
+from signpose.training.mining import NegativeMiner, sliding_windows
 
 
 def _rect_sum(win: np.ndarray, x: int, y: int, w: int, h: int) -> float:
@@ -15,7 +16,7 @@ def _rect_sum(win: np.ndarray, x: int, y: int, w: int, h: int) -> float:
 
 
 def test_feature_set_has_the_five_shapes_everywhere():
-    fs = haar.all_features()
+    fs = features.all_features()
     assert len(fs) == 162336
     counts = np.bincount(fs.shapes, minlength=5)
     assert counts.tolist() == [43200, 43200, 27600, 27600, 20736]
@@ -28,10 +29,10 @@ def test_feature_set_has_the_five_shapes_everywhere():
 
 def test_matmul_feature_values_equal_direct_rectangle_sums():
     rng = np.random.default_rng(0)
-    fs = haar.all_features()
+    fs = features.all_features()
     pick = fs.subset(rng.choice(len(fs), 300, replace=False))
     wins = rng.integers(0, 256, (7, 24, 24)).astype(np.uint8)
-    got = haar.feature_values(wins, haar.corner_weights(pick.rects))
+    got = features.feature_values(wins, features.corner_weights(pick.rects))
     for i, win in enumerate(wins):
         inner = win[1:-1, 1:-1].astype(np.float64)
         nf = np.sqrt(inner.size * (inner**2).sum() - inner.sum() ** 2)
@@ -49,7 +50,7 @@ def test_best_stump_matches_brute_force():
     w /= w.sum()
     vals[4] = 1.0  # a constant feature has no threshold
     signed = np.where(y, w, -w).astype(np.float32)
-    block = haar.PresortedBlock(vals)
+    block = adaboost.PresortedBlock(vals)
     f, thr, pol, err = block.best(signed, w[y].sum(), w[~y].sum())
     brute = np.inf
     for j in range(4):
@@ -66,11 +67,11 @@ def test_best_stump_matches_brute_force():
 def tiny_cascade(tmp_path_factory):
     """A 3-stage cascade trained in seconds on synthetic signs of two codes."""
     rng = np.random.default_rng(5)
-    pos = haar.render_positives(300, rng, codes=("0101", "1010"))
-    images = haar.background_images(rng, per_kind=2)
-    settings = haar.TrainSettings(features_per_stage=600, max_stages=3, max_weak_per_stage=20)
-    cascade = haar.train_cascade(
-        pos, haar.make_miner(images, 2_000_000), 400, settings, rng, haar.all_features()
+    pos = data.render_positives(300, rng, codes=("0101", "1010"))
+    images = data.background_images(rng, per_kind=2)
+    settings = adaboost.TrainSettings(features_per_stage=600, max_stages=3, max_weak_per_stage=20)
+    cascade = adaboost.train_cascade(
+        pos, NegativeMiner(images, 2_000_000), 400, settings, rng, features.all_features()
     )
     path = tmp_path_factory.mktemp("cascade") / "tiny.xml"
     write_cascade_xml(path, cascade, "test cascade")
@@ -96,7 +97,7 @@ def test_tiny_cascade_trains_and_opencv_finds_a_trained_sign(tiny_cascade):
 def test_numpy_and_opencv_cascades_agree_window_by_window(tiny_cascade):
     cascade, path, pos, images = tiny_cascade
     rng = np.random.default_rng(6)
-    negs = np.concatenate([haar.sliding_windows(im, 17)[:150] for im in images[:6]])
+    negs = np.concatenate([sliding_windows(im, 17)[:150] for im in images[:6]])
     wins = np.concatenate([pos[:150], negs])
     ours = cascade.accepts(wins)
     clf = cv2.CascadeClassifier(str(path))

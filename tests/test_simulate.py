@@ -13,22 +13,32 @@ from signpose.maps.loader import load_map
 
 from signpose.cli import main
 from signpose.core.errors import InputError, OutputError
+from signpose.io.boxes import (
+    FrameConditions,
+    FrameTruth,
+    SignTruth,
+    read_boxes,
+    read_frame_truths,
+    write_boxes,
+)
 from signpose.io.camera_file import load_camera
+from signpose.io.frames_csv import FrameStamp, read_frames_csv, write_frames_csv
 from signpose.io.tum import read_tum
 from signpose.sim.flight import (
     FORMATS,
     SimSettings,
-    build_scene,
     lighting_at,
-    make_frame_writer,
     pose_at,
-    read_boxes,
-    render_frame,
     simulate,
     simulated_camera,
 )
+from signpose.sim.frame import render_frame
 from signpose.sim.render import SIGN_BLACK, SIGN_WHITE, line_kernel
+from signpose.sim.scene import SceneOptions, build_scene
 from signpose.sim.trajectories import make_trajectory
+from signpose.sim.writers import make_frame_writer
+
+NO_BACKGROUND = SceneOptions(background=False)
 
 SMALL = SimSettings(frames=4, width=480, height=270, hfov_deg=20.0)
 
@@ -62,7 +72,7 @@ def test_location_square_centre_matches_projected_map_centre(demo_map, trajector
     settings = SimSettings()  # 1920x1080, 60 deg, k1 = -0.05
     camera = simulated_camera(settings)
     assert camera.dist[0] == -0.05
-    scene = build_scene(demo_map, camera, seed=0, background=False)
+    scene = build_scene(demo_map, camera, seed=0, options=NO_BACKGROUND)
     traj = make_trajectory(trajectory, demo_map, n_frames=210, fps=30.0)
     poses = traj.world_T_cam()
     checked = 0
@@ -90,7 +100,7 @@ def test_location_square_centre_matches_projected_map_centre(demo_map, trajector
 def test_motion_blur_keeps_the_location_square_centre(demo_map):
     """Blur is the symmetric exposure segment around the stamp: the centroid stays put."""
     camera = simulated_camera(SimSettings())
-    scene = build_scene(demo_map, camera, background=False)
+    scene = build_scene(demo_map, camera, options=NO_BACKGROUND)
     traj = make_trajectory("lawnmower", demo_map, 210, 30.0)
     poses, stamps = traj.world_T_cam(), traj.stamps_s
     opts = replace(clean_sim_options(), blur=True)
@@ -122,7 +132,7 @@ def test_motion_blur_keeps_the_location_square_centre(demo_map):
 
 def test_truth_keypoints_are_on_white_and_black_slots_dark(demo_map):
     camera = simulated_camera(SimSettings())
-    scene = build_scene(demo_map, camera, background=False)
+    scene = build_scene(demo_map, camera, options=NO_BACKGROUND)
     pose = make_trajectory("orbit", demo_map, 60, 30.0).world_T_cam()[10]
     image, truths = render_frame(scene, pose, np.random.default_rng(0), options=clean_sim_options())
     gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(float)
@@ -146,7 +156,7 @@ def test_truth_keypoints_are_on_white_and_black_slots_dark(demo_map):
 
 def test_location_square_size_in_image(demo_map):
     camera = simulated_camera(SimSettings())
-    scene = build_scene(demo_map, camera, background=False)
+    scene = build_scene(demo_map, camera, options=NO_BACKGROUND)
     pose = make_trajectory("climb-hover-depart", demo_map, 30, 30.0).world_T_cam()[15]
     image, truths = render_frame(scene, pose, np.random.default_rng(0), options=clean_sim_options())
     gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(float)
@@ -161,7 +171,7 @@ def test_location_square_size_in_image(demo_map):
 
 
 def test_truth_fields_are_consistent(demo_map):
-    scene = build_scene(demo_map, simulated_camera(SimSettings()), background=False)
+    scene = build_scene(demo_map, simulated_camera(SimSettings()), options=NO_BACKGROUND)
     pose = make_trajectory("lawnmower", demo_map, 40, 30.0).world_T_cam()[20]
     _, truths = render_frame(scene, pose, np.random.default_rng(0), options=clean_sim_options())
     assert truths
@@ -242,8 +252,10 @@ def test_simulate_png_outputs_and_ground_truth_files(demo_map, tmp_path):
 
 def test_occlusion_and_dirt_change_the_signs(demo_map):
     camera = simulated_camera(SMALL)
-    clean = build_scene(demo_map, camera, seed=3, background=False)
-    dirty = build_scene(demo_map, camera, seed=3, dirt=True, occlusion=True, background=False)
+    clean = build_scene(demo_map, camera, seed=3, options=NO_BACKGROUND)
+    dirty = build_scene(
+        demo_map, camera, seed=3, options=SceneOptions(dirt=True, occlusion=True, background=False)
+    )
     assert any(s.occluders_m for s in dirty.signs) and any(s.dirt_m for s in dirty.signs)
     pose = make_trajectory("climb-hover-depart", demo_map, 10, 30.0).world_T_cam()[5]
     opts = clean_sim_options()
@@ -349,3 +361,58 @@ def test_every_format_writes_its_frames(demo_map, tmp_path):
         res = simulate(demo_map, tmp_path / fmt, settings, progress=False)
         assert res.frames_path == tmp_path / fmt / names[fmt]
         assert res.frames_path.exists()
+
+
+def test_frames_csv_round_trip_and_errors(tmp_path):
+    rows = [FrameStamp("000000.png", 0), FrameStamp("000001.png", 33_333_333)]
+    path = write_frames_csv(tmp_path / "frames.csv", rows)
+    assert path.read_text(encoding="utf-8").splitlines()[0] == "filename,stamp_ns"
+    back = read_frames_csv(path)
+    assert [(r.filename, r.stamp_ns) for r in back] == [(r.filename, r.stamp_ns) for r in rows]
+    assert [r.line for r in back] == [2, 3]
+    for text, message in (
+        ("name,time\na.png,0\n", "header"),
+        ("filename,stamp_ns\na.png,1.5\n", "line 2: stamp_ns '1.5' is not an integer"),
+        ("filename,stamp_ns\na.png\n", "line 2: expected"),
+        ("filename,stamp_ns\n\n", "lists no frames"),
+    ):
+        (tmp_path / "bad.csv").write_text(text, encoding="utf-8")
+        with pytest.raises(InputError, match=message):
+            read_frames_csv(tmp_path / "bad.csv")
+
+
+def test_boxes_round_trip_keeps_every_field(tmp_path):
+    sign = SignTruth(
+        code="0101",
+        bbox_px=(10.0, 20.5, 30.25, 31.0),
+        center_px=(25.1234, 36.0),
+        diameter_px=30.5,
+        keypoints_px={"center": (25.1234, 36.0), "slot2": (30.0, 40.0)},
+        occluded=True,
+        truncated=False,
+        distance_m=27.25,
+        covered_slots=(2,),
+        part_cover={"center": 0.0, "slot2": 0.5},
+        occluders=("member",),
+        fade=0.25,
+        dirty=True,
+        glare_dn=40.0,
+    )
+    frames = [
+        FrameTruth(0, 0, (sign,), FrameConditions(80, 1.1, -2.0, (1.5, 0.0), "photo:rocket")),
+        FrameTruth(1, 33_333_333, ()),
+    ]
+    path = write_boxes(tmp_path / "boxes.jsonl", frames)
+    assert read_frame_truths(path) == frames
+    assert read_boxes(path)[0]["signs"][0]["covered_slots"] == [2]
+    # Files from before the occlusion truth existed still read, with defaults.
+    old = {
+        "frame": 0,
+        "stamp_ns": 0,
+        "signs": [{k: v for k, v in sign.to_json().items() if k not in ("covered_slots", "fade")}],
+    }
+    (tmp_path / "old.jsonl").write_text(json.dumps(old) + "\n", encoding="utf-8")
+    assert read_frame_truths(tmp_path / "old.jsonl")[0].signs[0].covered_slots == ()
+    (tmp_path / "bad.jsonl").write_text("{not json\n", encoding="utf-8")
+    with pytest.raises(InputError, match="line 1"):
+        read_boxes(tmp_path / "bad.jsonl")

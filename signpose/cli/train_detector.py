@@ -4,11 +4,22 @@ from __future__ import annotations
 
 import argparse
 import logging
+import tempfile
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
+from tqdm import tqdm
+
 from signpose.cli import add_quiet
 from signpose.core.errors import InputError, OutputError
+from signpose.io.boxes import read_boxes
+from signpose.maps.loader import bundled_map_path, load_map
+from signpose.sim.flight import SimSettings, simulate
+from signpose.training.adaboost import TrainSettings
+from signpose.training.cascade_xml import write_cascade_xml
+from signpose.training.haar import train_sign_cascade
 
 log = logging.getLogger(__name__)
 
@@ -43,14 +54,6 @@ def scene_negatives(seed: int, n_frames: int) -> list:
     Three short flights (far, middle, near) with seeds derived from ``seed``
     (``1_000_000 + 10 * seed + k``), so evaluation seeds stay unseen.
     """
-    import tempfile
-
-    import cv2
-    import numpy as np
-
-    from signpose.maps.loader import bundled_map_path, load_map
-    from signpose.sim.flight import SimSettings, read_boxes, simulate
-
     sign_map = load_map(bundled_map_path())
     out = []
     flights = (("orbit", 55.0), ("climb-hover-depart", 27.0), ("lawnmower", 14.0))
@@ -77,11 +80,6 @@ def scene_negatives(seed: int, n_frames: int) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from signpose.training.cascade_xml import write_cascade_xml
-    from signpose.training.haar import TrainSettings, train_sign_cascade
-
     if args.out.suffix.lower() != ".xml":
         raise InputError(f"{args.out}: use a .xml file name")
     if not args.out.parent.exists() and str(args.out.parent) not in ("", "."):

@@ -8,7 +8,6 @@ format, ambiguous topic) raise InputError when the source is opened.
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 import os
@@ -25,6 +24,7 @@ import numpy as np
 
 from signpose.core.errors import InputError
 from signpose.estimator.camera import CameraModel, check_image_size
+from signpose.io.frames_csv import read_frames_csv
 from signpose.io.mcap_read import McapLog
 from signpose.io.messages import camera_from_message, image_from_message, message_stamp_ns
 
@@ -219,33 +219,14 @@ class FolderSource(FrameSource):
 
 
 def _read_times_csv(csv_path: Path, files: dict[str, Path]) -> list[tuple[Path, int]]:
-    try:
-        text = csv_path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{csv_path}: cannot read ({exc})") from None
-    reader = csv.reader(text.splitlines())
-    header = next(reader, None)
-    if header is None or [h.strip() for h in header[:2]] != ["filename", "stamp_ns"]:
-        raise InputError(f"{csv_path}: first line must be the header 'filename,stamp_ns'")
     items = []
-    for lineno, row in enumerate(reader, start=2):
-        if not row or not "".join(row).strip():
-            continue
-        if len(row) < 2:
-            raise InputError(f"{csv_path}: line {lineno}: expected 'filename,stamp_ns'")
-        name, stamp = row[0].strip(), row[1].strip()
-        try:
-            stamp_ns = int(stamp)
-        except ValueError:
-            raise InputError(
-                f"{csv_path}: line {lineno}: stamp_ns {stamp!r} is not an integer"
-            ) from None
-        p = files.get(Path(name).name)
+    for row in read_frames_csv(csv_path):
+        p = files.get(Path(row.filename).name)
         if p is None:
-            raise InputError(f"{csv_path}: line {lineno}: image {name!r} is not in the folder")
-        items.append((p, stamp_ns))
-    if not items:
-        raise InputError(f"{csv_path}: lists no frames")
+            raise InputError(
+                f"{csv_path}: line {row.line}: image {row.filename!r} is not in the folder"
+            )
+        items.append((p, row.stamp_ns))
     items.sort(key=lambda item: item[1])
     return items
 

@@ -25,7 +25,7 @@ centres). Pixel centres are at integers (OpenCV convention).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -256,33 +256,59 @@ def _add_dirt(rng: np.random.Generator, img: np.ndarray, centre, radius_px: floa
 # The crop
 
 
-def render_crop(
-    code: str,
-    rng: np.random.Generator,
-    *,
-    sign_px: float,
-    out_px: int | None = None,
-    rotation_deg: float = 0.0,
-    tilt_deg: float = 0.0,
-    tilt_axis_deg: float = 0.0,
-    blur_px: float = 0.0,
-    noise_sigma: float = 0.0,
-    dirt: bool = False,
-    power_line: bool = False,
-    background: str = "plain",
-    contrast: float = 1.0,
-    brightness: float = 0.0,
-    margin: float = 0.25,
-    focal_px: float = DEFAULT_FOCAL_PX,
-    psf_sigma_px: float = 0.4,
-    offset_px: tuple[float, float] = (0.0, 0.0),
-    supersample: int = 8,
-) -> SynthCrop:
-    """Render sign ``code`` in a square gray crop (a detector's region of interest).
+def _draw_face(
+    img: np.ndarray, code: str, crop_H_sign: np.ndarray, diameter_m: float, supersample: int
+) -> None:
+    """Paint the black disc and the white parts of ``code`` into float ``img`` (in place)."""
+    shape = sign_shape(code, diameter_m)
+    fill_polygon_aa(img, apply_homography(crop_H_sign, shape.disc), BLACK_LEVEL, supersample)
+    for corners in shape.white_parts.values():
+        fill_polygon_aa(img, apply_homography(crop_H_sign, corners), WHITE_LEVEL, supersample)
 
-    Args:
-        code: sign code, "0000".."1111".
-        rng: the only source of randomness (background, jitter, disturbances).
+
+def _add_power_line(
+    rng: np.random.Generator, img: np.ndarray, ellipse: Ellipse, sign_px: float
+) -> dict:
+    """Draw a dark conductor across the sign (in place); return its angle and width."""
+    side = img.shape[0]
+    angle = rng.uniform(0, math.pi)
+    through = np.asarray(ellipse[0]) + rng.uniform(-0.3, 0.3, size=2) * sign_px
+    width = rng.uniform(0.8, 2.0) * max(1.0, sign_px / 60.0)
+    value = rng.uniform(20, 80)
+    _bar(img, *_line_through(rng, side, side, point=through, angle=angle), width, value)
+    return {"angle_deg": math.degrees(angle), "width_px": width}
+
+
+@dataclass(frozen=True)
+class _Exposure:
+    """How the drawn crop becomes an image: blur, optics, exposure, noise (``render_crop``)."""
+
+    blur_px: float
+    blur_angle: float
+    psf_sigma_px: float
+    contrast: float
+    brightness: float
+    noise_sigma: float
+
+
+def _expose(rng: np.random.Generator, img: np.ndarray, e: _Exposure) -> np.ndarray:
+    """Motion blur, optics blur, contrast/brightness and noise; (H, W) uint8."""
+    if e.blur_px > 0:
+        kernel = _motion_kernel(e.blur_px, e.blur_angle)
+        img = cv2.filter2D(img, -1, kernel, borderType=cv2.BORDER_REFLECT)
+    if e.psf_sigma_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), e.psf_sigma_px, borderType=cv2.BORDER_REFLECT)
+    img = (img - 128.0) * e.contrast + 128.0 + e.brightness
+    if e.noise_sigma > 0:
+        img = img + rng.normal(0.0, e.noise_sigma, img.shape)
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class CropSettings:
+    """How ``render_crop`` draws a sign (every field is also a keyword of ``render_crop``).
+
+    Attributes:
         sign_px: disc diameter seen face-on [px].
         out_px: crop side [px]; default ``ceil(sign_px * (1 + 2 * margin))``.
         rotation_deg: in-plane turn of the face, counter-clockwise as seen [deg].
@@ -299,82 +325,104 @@ def render_crop(
         psf_sigma_px: Gaussian optics blur always applied [px].
         offset_px: shift of the sign centre from the crop centre [px].
         supersample: sub-samples per pixel side for the polygon fill.
+    """
+
+    sign_px: float = 48.0
+    out_px: int | None = None
+    rotation_deg: float = 0.0
+    tilt_deg: float = 0.0
+    tilt_axis_deg: float = 0.0
+    blur_px: float = 0.0
+    noise_sigma: float = 0.0
+    dirt: bool = False
+    power_line: bool = False
+    background: str = "plain"
+    contrast: float = 1.0
+    brightness: float = 0.0
+    margin: float = 0.25
+    focal_px: float = DEFAULT_FOCAL_PX
+    psf_sigma_px: float = 0.4
+    offset_px: tuple[float, float] = (0.0, 0.0)
+    supersample: int = 8
+
+    def side_px(self) -> int:
+        if self.out_px is not None:
+            return int(self.out_px)
+        return int(math.ceil(self.sign_px * (1 + 2 * self.margin)))
+
+    def conditions(self, blur_angle: float, line: dict | None) -> dict:
+        """The rendering parameters as ``SynthCrop.conditions`` reports them."""
+        return {
+            "sign_px": float(self.sign_px),
+            "out_px": self.side_px(),
+            "rotation_deg": float(self.rotation_deg),
+            "tilt_deg": float(self.tilt_deg),
+            "tilt_axis_deg": float(self.tilt_axis_deg),
+            "blur_px": float(self.blur_px),
+            "blur_angle_deg": math.degrees(blur_angle) if self.blur_px > 0 else None,
+            "noise_sigma": float(self.noise_sigma),
+            "dirt": bool(self.dirt),
+            "power_line": line,
+            "background": self.background,
+            "contrast": float(self.contrast),
+            "brightness": float(self.brightness),
+            "focal_px": float(self.focal_px),
+            "psf_sigma_px": float(self.psf_sigma_px),
+        }
+
+
+def render_crop(
+    code: str, rng: np.random.Generator, settings: CropSettings | None = None, **options
+) -> SynthCrop:
+    """Render sign ``code`` in a square gray crop (a detector's region of interest).
+
+    Args:
+        code: sign code, "0000".."1111".
+        rng: the only source of randomness (background, jitter, disturbances).
+        settings: how to draw it (default ``CropSettings()``).
+        **options: fields of ``CropSettings`` that override ``settings``, e.g.
+            ``render_crop("0101", rng, sign_px=40, tilt_deg=30)``.
 
     Returns:
         The crop with its exact keypoints and disc ellipse.
     """
     validate_code(code)
-    if background not in BACKGROUNDS:
-        raise ValueError(f"unknown background {background!r}: use one of {', '.join(BACKGROUNDS)}")
-    side = int(out_px) if out_px is not None else int(math.ceil(sign_px * (1 + 2 * margin)))
+    s = replace(settings or CropSettings(), **options)
+    if s.background not in BACKGROUNDS:
+        raise ValueError(
+            f"unknown background {s.background!r}: use one of {', '.join(BACKGROUNDS)}"
+        )
+    side = s.side_px()
     diameter_m = 1.0
     jitter = rng.uniform(-0.5, 0.5, size=2)
     principal = (
-        (side - 1) / 2.0 + offset_px[0] + jitter[0],
-        (side - 1) / 2.0 + offset_px[1] + jitter[1],
+        (side - 1) / 2.0 + s.offset_px[0] + jitter[0],
+        (side - 1) / 2.0 + s.offset_px[1] + jitter[1],
     )
     crop_H_sign = crop_homography(
-        sign_px, rotation_deg, tilt_deg, tilt_axis_deg, principal, focal_px, diameter_m
+        s.sign_px, s.rotation_deg, s.tilt_deg, s.tilt_axis_deg, principal, s.focal_px, diameter_m
     )
-
-    img = _background_float(rng, side, side, background)
-    shape = sign_shape(code, diameter_m)
-    fill_polygon_aa(img, apply_homography(crop_H_sign, shape.disc), BLACK_LEVEL, supersample)
-    for corners in shape.white_parts.values():
-        fill_polygon_aa(img, apply_homography(crop_H_sign, corners), WHITE_LEVEL, supersample)
-
+    img = _background_float(rng, side, side, s.background)
+    _draw_face(img, code, crop_H_sign, diameter_m, s.supersample)
     ellipse = disc_ellipse(crop_H_sign, diameter_m)
-    if dirt:
+    if s.dirt:
         _add_dirt(rng, img, ellipse[0], ellipse[1][0] / 2)
-    line = None
-    if power_line:
-        angle = rng.uniform(0, math.pi)
-        through = np.asarray(ellipse[0]) + rng.uniform(-0.3, 0.3, size=2) * sign_px
-        width = rng.uniform(0.8, 2.0) * max(1.0, sign_px / 60.0)
-        value = rng.uniform(20, 80)
-        _bar(img, *_line_through(rng, side, side, point=through, angle=angle), width, value)
-        line = {"angle_deg": math.degrees(angle), "width_px": width}
-
+    line = _add_power_line(rng, img, ellipse, s.sign_px) if s.power_line else None
     blur_angle = rng.uniform(0, math.pi)
-    if blur_px > 0:
-        img = cv2.filter2D(
-            img, -1, _motion_kernel(blur_px, blur_angle), borderType=cv2.BORDER_REFLECT
-        )
-    if psf_sigma_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), psf_sigma_px, borderType=cv2.BORDER_REFLECT)
-    img = (img - 128.0) * contrast + 128.0 + brightness
-    if noise_sigma > 0:
-        img = img + rng.normal(0.0, noise_sigma, img.shape)
-    image = np.clip(np.round(img), 0, 255).astype(np.uint8)
-
+    exposure = _Exposure(
+        s.blur_px, blur_angle, s.psf_sigma_px, s.contrast, s.brightness, s.noise_sigma
+    )
+    image = _expose(rng, img, exposure)
     kps = sign_keypoints(code, diameter_m)
     names = list(kps)
     uv = apply_homography(crop_H_sign, np.array([kps[n][:2] for n in names]))
-    keypoints = {n: (float(p[0]), float(p[1])) for n, p in zip(names, uv, strict=True)}
-    conditions = {
-        "sign_px": float(sign_px),
-        "out_px": side,
-        "rotation_deg": float(rotation_deg),
-        "tilt_deg": float(tilt_deg),
-        "tilt_axis_deg": float(tilt_axis_deg),
-        "blur_px": float(blur_px),
-        "blur_angle_deg": math.degrees(blur_angle) if blur_px > 0 else None,
-        "noise_sigma": float(noise_sigma),
-        "dirt": bool(dirt),
-        "power_line": line,
-        "background": background,
-        "contrast": float(contrast),
-        "brightness": float(brightness),
-        "focal_px": float(focal_px),
-        "psf_sigma_px": float(psf_sigma_px),
-    }
     return SynthCrop(
         image=image,
         code=code,
-        keypoints_px=keypoints,
+        keypoints_px={n: (float(p[0]), float(p[1])) for n, p in zip(names, uv, strict=True)},
         ellipse=ellipse,
-        diameter_px=float(sign_px),
+        diameter_px=float(s.sign_px),
         crop_H_sign=crop_H_sign,
         diameter_m=diameter_m,
-        conditions=conditions,
+        conditions=s.conditions(blur_angle, line),
     )

@@ -1,6 +1,6 @@
 """Synthetic camera frames of signs on a pylon (the image side of the flight simulator).
 
-This module only draws. The caller (``signpose.simulate``) owns the camera
+This module only draws. The caller (``signpose.sim.frame``) owns the camera
 model and projects every 3D element -- the sign faces, dirt and occluders on
 them, lattice members, conductors -- into raw (distorted) pixels; this module
 receives those 2D polygons and polylines and turns them into a BGR frame:
@@ -480,20 +480,41 @@ def compose_frame(
     for sign in signs:
         _render_sign(frame, sign, options)
     if options.background and lines_front:
-        mask = np.zeros((h, w), np.uint8)
-        _draw_lines(mask, list(lines_front), mask_mode=True)
-        if bg_kernel is not None:
-            mask = cv2.filter2D(mask, -1, bg_kernel, borderType=cv2.BORDER_CONSTANT)
-        # Thin lines cover few pixels: composite only those.
-        nz = cv2.findNonZero(mask)
-        if nz is not None:
-            xs, ys = nz[:, 0, 0], nz[:, 0, 1]
-            a = mask[ys, xs].astype(np.float32)[:, None] * (1.0 / 255.0)
-            px = frame[ys, xs].astype(np.float32)
-            color = np.asarray(lines_front[0].bgr, np.float32)
-            frame[ys, xs] = np.clip(np.rint(px + a * (color - px)), 0, 255).astype(np.uint8)
+        _composite_front_lines(frame, lines_front, bg_kernel)
     if not options.lighting:
         gain, offset = 1.0, 0.0
+    return _sensor(frame, backdrop, rng, gain, offset, options)
+
+
+def _composite_front_lines(
+    frame: np.ndarray, lines_front: Sequence[ProjectedLine], kernel: np.ndarray | None
+) -> None:
+    """Blend ``lines_front`` (in the first one's colour, blurred by ``kernel``) into ``frame``."""
+    h, w = frame.shape[:2]
+    mask = np.zeros((h, w), np.uint8)
+    _draw_lines(mask, list(lines_front), mask_mode=True)
+    if kernel is not None:
+        mask = cv2.filter2D(mask, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+    # Thin lines cover few pixels: composite only those.
+    nz = cv2.findNonZero(mask)
+    if nz is not None:
+        xs, ys = nz[:, 0, 0], nz[:, 0, 1]
+        a = mask[ys, xs].astype(np.float32)[:, None] * (1.0 / 255.0)
+        px = frame[ys, xs].astype(np.float32)
+        color = np.asarray(lines_front[0].bgr, np.float32)
+        frame[ys, xs] = np.clip(np.rint(px + a * (color - px)), 0, 255).astype(np.uint8)
+
+
+def _sensor(
+    frame: np.ndarray,
+    backdrop: Backdrop | None,
+    rng: np.random.Generator,
+    gain: float,
+    offset: float,
+    options: RenderOptions,
+) -> np.ndarray:
+    """Lighting gain/offset, sensor noise and the JPEG round trip of a rendered frame."""
+    h, w = frame.shape[:2]
     sigma = float(options.noise_sigma)
     if sigma > 0 and backdrop is not None:
         pad = Backdrop.NOISE_PAD

@@ -23,8 +23,14 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
     return x * x * (3 - 2 * x)
 
 
-def _site_frame(sign_map: SignMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Centre of the signs, the mean facing direction, a horizontal 'right' and world up."""
+def site_frame(sign_map: SignMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The site's axes: what flights look at and the pylon is built around.
+
+    Returns:
+        (mean sign centre (3,) [m], horizontal unit facing direction of the
+        signs, horizontal unit 'right' of a viewer facing them, world up),
+        all in the world frame.
+    """
     centers = sign_map.centers_m()
     center = centers.mean(axis=0)
     normals = [s.normal for s in sign_map.signs if s.normal is not None]
@@ -33,7 +39,7 @@ def _site_frame(sign_map: SignMap) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     else:
         # Centre-only map: the direction of least spread of the centres.
         _, _, vt = np.linalg.svd(centers - center)
-        facing = vt[-1]
+        facing = vt[-1].copy()
     facing[2] = 0.0
     if np.linalg.norm(facing) < 1e-6:
         facing = np.array([0.0, 1.0, 0.0])
@@ -86,7 +92,7 @@ def make_trajectory(
     if name not in TRAJECTORIES:
         raise ValueError(f"unknown trajectory {name!r}; choose from {', '.join(TRAJECTORIES)}")
     rng = np.random.default_rng(seed)
-    center, facing, right, up = _site_frame(sign_map)
+    center, facing, right, up = site_frame(sign_map)
     span_z = float(np.ptp(sign_map.centers_m()[:, 2])) if len(sign_map.signs) > 1 else 4.0
     s = np.linspace(0.0, 1.0, n_frames)
     d = distance_m

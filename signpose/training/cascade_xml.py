@@ -16,7 +16,7 @@ import numpy as np
 
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write
-from signpose.training.haar import Cascade, Stage, Stump
+from signpose.training.cascade import Cascade, Stage, Stump
 
 
 def _f(x: float) -> str:
