@@ -18,33 +18,64 @@ windows of different sizes that overlap enough become one);
   the blob, magnified for signs smaller than the 24 px window
   (``fast_small_min_px``), which the paper's sliding window cannot see.
 * tracking (``detect_tracked``): given each sign's predicted centre and
-  diameter (from the previous pose), search only a region around it with the
+  diameter (from a previous pose), search only a region around it with the
   window size restricted to the predicted one; when signs are lost the full
-  frame is searched in ``fast`` mode (``fell_back``). The detector remembers
-  how many frames ago it last did so (``track_refresh_frames``), its only
-  state.
+  frame is searched in ``fast`` mode (``fell_back``). The detector keeps no
+  state between frames: the caller says when a partial find is not enough
+  (``refresh``), so its results depend only on its arguments (and a flight's
+  observations not on which thread ran which frame).
 
 Each merged region goes to ``frontend.decoder.decode_region``; regions that
-do not decode are dropped and counted (``n_undecoded``).
+do not decode are dropped and counted (``n_undecoded``). Decoded signs are
+``frontend.observations.SignObservation``; ``Detector`` is the protocol the
+pipeline calls (``SignDetector`` here, a replay of known answers in tests).
 """
 
 from __future__ import annotations
 
+import enum
 import math
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from typing import NamedTuple, Protocol
 
 import cv2
 import numpy as np
-from signpose.frontend.observations import FrameObservations, SignObservation
+from signpose.frontend.decoder import DecodeResult, decode_region
+from signpose.frontend.observations import DEFAULT_SIGMA_PX, FrameObservations, SignObservation
 
 from signpose.core.errors import InputError
 
 WINDOW_PX = 24
-MODES = ("fast", "paper")
+
+
+class DetectorMode(enum.StrEnum):
+    """How a frame was searched; the value is the token written to files."""
+
+    FAST = "fast"  # full frame, cascade around dark-disc candidates
+    PAPER = "paper"  # full frame, the paper's sliding window
+    TRACK = "track"  # around predicted signs (full frame in fast mode when lost)
+
+
+# The full-frame modes a user can ask for.
+MODES: tuple[str, ...] = (DetectorMode.FAST.value, DetectorMode.PAPER.value)
+
+
+class PredictedSign(NamedTuple):
+    """Where a sign of the map should appear in the next image.
+
+    Attributes:
+        code: the sign's code.
+        center_px: (u, v) predicted centre, raw image pixels.
+        diameter_px: predicted disc diameter [px].
+    """
+
+    code: str
+    center_px: tuple[float, float]
+    diameter_px: float
 
 
 def bundled_cascade_path() -> Path:
@@ -88,10 +119,8 @@ class DetectorSettings:
             diameter.
         track_scale_factor: window growth between sizes when tracking.
         track_min_found_frac: tracking searches the full frame when it finds
-            fewer than this fraction of the predicted signs...
-        track_refresh_frames: ...or when any predicted sign is missing and
-            the last full-frame search is this many tracked frames ago
-            (an occluded sign then does not cost a full search every frame).
+            fewer than this fraction of the predicted signs (with ``refresh``:
+            when it misses any).
         decode: run the decoder (False: return raw merged regions, for tests).
     """
 
@@ -111,29 +140,7 @@ class DetectorSettings:
     track_scale: tuple[float, float] = (0.8, 1.4)
     track_scale_factor: float = 1.12
     track_min_found_frac: float = 0.5
-    track_refresh_frames: int = 10
     decode: bool = True
-
-
-@dataclass(frozen=True)
-class Detection:
-    """One decoded sign.
-
-    Attributes:
-        code: decoded code "0000".."1111".
-        center_px: (u, v) sign centre in image pixels (the decoder's ``center``).
-        bbox_px: (x, y, w, h) merged detector region [px].
-        keypoints_px: keypoint name -> (u, v) image pixels (from the decoder).
-        score: confidence in [0, 1] (agreeing windows and decoder quality).
-        sigma_px: keypoint standard deviation from the decoder [px].
-    """
-
-    code: str
-    center_px: tuple[float, float]
-    bbox_px: tuple[float, float, float, float]
-    keypoints_px: dict[str, tuple[float, float]]
-    score: float
-    sigma_px: float
 
 
 @dataclass(frozen=True)
@@ -141,22 +148,47 @@ class DetectionResult:
     """All signs found in one image.
 
     Attributes:
-        detections: decoded signs, one per code at most (best score kept).
+        detections: the decoded signs (``bbox_px`` is the merged detector
+            region, ``score`` in [0, 1] from agreeing windows and decoder
+            quality), ordered by code then position. One per sign: regions
+            that decode to the same code within a sign's radius of each other
+            are one sign (the best reading is kept); the same code at two
+            places is reported twice, for the caller to settle.
         n_regions: merged regions the cascade found.
         n_undecoded: regions dropped because they did not decode.
         timing: stage name -> milliseconds ("cascade", "merge", "decode", "total").
-        mode: "fast", "paper" or "track".
+        mode: how the frame was searched.
         fell_back: tracking lost a predicted sign and searched the full frame.
         regions: (n_regions, 4) merged regions (x, y, w, h) before decoding.
     """
 
-    detections: tuple[Detection, ...]
+    detections: tuple[SignObservation, ...]
     n_regions: int
     n_undecoded: int
     timing: dict[str, float] = field(default_factory=dict)
-    mode: str = "fast"
+    mode: DetectorMode = DetectorMode.FAST
     fell_back: bool = False
     regions: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+
+
+class Detector(Protocol):
+    """What the pipeline needs of a detector (``SignDetector``; a replay in tests)."""
+
+    def detect(
+        self, image: np.ndarray, codes: Iterable[str] | None = None, mode: str = "fast"
+    ) -> DetectionResult:
+        """Every sign of a whole image (``mode``: one of ``MODES``)."""
+        ...
+
+    def detect_tracked(
+        self,
+        image: np.ndarray,
+        predictions: Sequence[PredictedSign],
+        codes: Iterable[str] | None = None,
+        refresh: bool = False,
+    ) -> DetectionResult:
+        """The signs around their predicted places (full frame when lost)."""
+        ...
 
 
 # --------------------------------------------------------------------------- merge
@@ -309,7 +341,6 @@ class SignDetector:
         self.cascade_path = path
         self.settings = settings or DetectorSettings()
         self._cascade = cv2.CascadeClassifier(str(path))
-        self._since_full = 0  # tracked frames since the last full-frame search
         if self._cascade.empty():
             raise InputError(f"{path}: not an OpenCV cascade classifier XML")
 
@@ -331,7 +362,9 @@ class SignDetector:
         rects = self._cascade.detectMultiScale(
             gray, scaleFactor=sf, minNeighbors=0, minSize=(lo, lo), maxSize=(hi, hi)
         )
-        return np.asarray(rects, int).reshape(-1, 4)
+        # OpenCV's worker threads append windows in the order they finish:
+        # sorted, the merge (and so the output) does not depend on it.
+        return np.unique(np.asarray(rects, int).reshape(-1, 4), axis=0)
 
     def _raw_scaled(
         self, gray: np.ndarray, zoom: float, min_px: float, max_px: float, sf: float | None = None
@@ -451,7 +484,7 @@ class SignDetector:
         timing["decode"] = timing.get("decode", 0.0) + (t3 - t2) * 1e3
         timing["total"] = (t3 - t0) * 1e3
         return DetectionResult(
-            tuple(dets), len(regions), undecoded, timing, mode, fell_back, regions
+            dets, len(regions), undecoded, timing, DetectorMode(mode), fell_back, regions
         )
 
     def _decode(
@@ -460,44 +493,30 @@ class SignDetector:
         regions: np.ndarray,
         counts: np.ndarray,
         codes: Iterable[str] | None,
-    ) -> tuple[list[Detection], int]:
+    ) -> tuple[tuple[SignObservation, ...], int]:
         codes = tuple(codes) if codes is not None else None
         if not self.settings.decode:
-            dets = [
-                Detection(
-                    "",
-                    (float(x + w / 2), float(y + h / 2)),
-                    (float(x), float(y), float(w), float(h)),
-                    {},
-                    float(n / (n + 2.0)),
-                    float("inf"),
+            raw = tuple(
+                SignObservation(
+                    code="",
+                    keypoints_px={"center": (float(x + w / 2), float(y + h / 2))},
+                    bbox_px=(float(x), float(y), float(w), float(h)),
+                    sigma_px=float("inf"),
+                    score=_window_score(n),
                 )
                 for (x, y, w, h), n in zip(regions, counts, strict=True)
-            ]
-            return dets, 0
-        from signpose.frontend.decoder import decode_region
-
-        best: dict[str, Detection] = {}
+            )
+            return raw, 0
+        found: list[SignObservation] = []
         undecoded = 0
         for (x, y, w, h), n in zip(regions, counts, strict=True):
-            res = decode_region(gray, (float(x), float(y), float(w), float(h)), codes)
+            box = (float(x), float(y), float(w), float(h))
+            res = decode_region(gray, box, codes)
             if res.code is None:
                 undecoded += 1
                 continue
-            score = float(n / (n + 2.0)) * (0.5 + 0.5 * float(res.quality))
-            det = Detection(
-                res.code,
-                tuple(float(v) for v in res.keypoints_px["center"]),
-                (float(x), float(y), float(w), float(h)),
-                {k: (float(u), float(v)) for k, (u, v) in res.keypoints_px.items()},
-                score,
-                float(res.sigma_px),
-            )
-            # A code appears once per frame: keep the strongest reading (a
-            # duplicate region of the same sign is not counted as undecoded).
-            if res.code not in best or det.score > best[res.code].score:
-                best[res.code] = det
-        return list(best.values()), undecoded
+            found.append(_observation(res, box, n))
+        return one_per_sign(found), undecoded
 
     # -- public ------------------------------------------------------------------
 
@@ -522,23 +541,65 @@ class SignDetector:
     def detect_tracked(
         self,
         image: np.ndarray,
-        predictions: Sequence[tuple[str, tuple[float, float], float]],
+        predictions: Sequence[PredictedSign],
         codes: Iterable[str] | None = None,
+        refresh: bool = False,
     ) -> DetectionResult:
-        """Search only around predicted signs; fall back to a full frame when one is lost.
+        """Search only around predicted signs; fall back to a full frame when they are lost.
+
+        The full frame is searched (fast mode) when fewer than
+        ``track_min_found_frac`` of the predicted signs inside the image are
+        found, or, with ``refresh``, when any of them is missing (the caller
+        asks for that every few frames, so an occluded sign does not cost a
+        full search every frame).
 
         Args:
             image: (H, W) uint8 grey image.
-            predictions: (code, (u, v) predicted centre [px], predicted
-                diameter [px]) per sign expected in view.
+            predictions: the signs expected in view.
             codes: the codes that may appear; None = all 16.
+            refresh: a missing predicted sign is enough to search the full frame.
 
         Returns:
-            The detections; ``mode`` "track", ``fell_back`` True when a
-            predicted sign was not found and the full frame was searched.
+            The detections; ``mode`` track, ``fell_back`` True when the full
+            frame was searched.
         """
         t0 = time.perf_counter()
         gray = _as_gray(image)
+        raw = self._tracked_raw(gray, predictions)
+        timing = {"cascade": (time.perf_counter() - t0) * 1e3}
+        res = self._finish(gray, raw, codes, "track", timing, t0)
+        if self._tracking_held(res, predictions, gray.shape, refresh):
+            return res
+        full = self.detect(gray, codes, "fast")
+        timing = {k: res.timing.get(k, 0.0) + v for k, v in full.timing.items()}
+        timing["total"] = (time.perf_counter() - t0) * 1e3
+        return DetectionResult(
+            full.detections,
+            full.n_regions,
+            full.n_undecoded,
+            timing,
+            DetectorMode.TRACK,
+            True,
+            full.regions,
+        )
+
+    def _tracking_held(
+        self,
+        res: DetectionResult,
+        predictions: Sequence[PredictedSign],
+        shape: tuple[int, ...],
+        refresh: bool,
+    ) -> bool:
+        """Whether the tracked search found enough of the predicted signs."""
+        h, w = shape[:2]
+        # Signs predicted (partly) outside the image cannot be required.
+        wanted = {code for code, (u, v), _d in predictions if 0 <= u < w and 0 <= v < h}
+        found = {d.code for d in res.detections} & wanted
+        enough = len(found) >= max(1.0, self.settings.track_min_found_frac * len(wanted))
+        return bool(wanted) and (found == wanted or (enough and not refresh))
+
+    def _tracked_raw(self, gray: np.ndarray, predictions: Sequence[PredictedSign]) -> np.ndarray:
+        """(N, 4) raw windows around the predicted signs, at their predicted sizes."""
         h, w = gray.shape
         s = self.settings
         parts = []
@@ -556,50 +617,60 @@ class SignDetector:
             r = self._raw_scaled(roi, zoom, lo, hi, sf=s.track_scale_factor)
             r[:, :2] += (x0, y0)
             parts.append(r)
-        raw = np.concatenate(parts) if parts else np.zeros((0, 4))
-        timing = {"cascade": (time.perf_counter() - t0) * 1e3}
-        res = self._finish(gray, raw, codes, "track", timing, t0)
-        # Signs predicted (partly) outside the image cannot be required.
-        wanted = {c for c, (u, v), _d in predictions if 0 <= u < w and 0 <= v < h}
-        found = {d.code for d in res.detections} & wanted
-        self._since_full += 1
-        enough = len(found) >= max(1.0, s.track_min_found_frac * len(wanted))
-        if wanted and (found == wanted or (enough and self._since_full < s.track_refresh_frames)):
-            return res
-        self._since_full = 0
-        full = self.detect(gray, codes, "fast")
-        timing = {k: res.timing.get(k, 0.0) + v for k, v in full.timing.items()}
-        timing["total"] = (time.perf_counter() - t0) * 1e3
-        return DetectionResult(
-            full.detections,
-            full.n_regions,
-            full.n_undecoded,
-            timing,
-            "track",
-            True,
-            full.regions,
+        # Overlapping regions report the same window twice: count it once.
+        return np.unique(np.concatenate(parts), axis=0) if parts else np.zeros((0, 4))
+
+
+def _window_score(n_windows: float) -> float:
+    """Confidence in [0, 1) from the number of agreeing cascade windows."""
+    return float(n_windows / (n_windows + 2.0))
+
+
+def _observation(
+    res: DecodeResult, box: tuple[float, float, float, float], n_windows: float
+) -> SignObservation:
+    """The decoder's reading of the region ``box`` (x, y, w, h) [px] as an observation."""
+    sigma = float(res.sigma_px)
+    return SignObservation(
+        code=res.code,
+        keypoints_px={k: (float(u), float(v)) for k, (u, v) in res.keypoints_px.items()},
+        bbox_px=box,
+        sigma_px=sigma if math.isfinite(sigma) and sigma > 0 else DEFAULT_SIGMA_PX,
+        score=min(max(_window_score(n_windows) * (0.5 + 0.5 * float(res.quality)), 0.0), 1.0),
+    )
+
+
+def one_per_sign(found: list[SignObservation]) -> tuple[SignObservation, ...]:
+    """One reading per sign, ordered by code then position.
+
+    Regions of one sign often overlap and decode alike: readings of a code
+    whose centres lie within half a region of a stronger reading are that
+    sign again (the strongest is kept, and they do not count as undecoded).
+    The same code farther away is kept: which one is the sign is for the
+    caller to settle (with the frame's pose).
+    """
+    kept: list[SignObservation] = []
+    for obs in sorted(found, key=lambda o: (-o.score, o.code, o.center_px)):
+        radius = 0.5 * max(obs.bbox_px[2], obs.bbox_px[3])
+        same = any(
+            k.code == obs.code
+            and math.dist(k.center_px, obs.center_px) <= max(radius, 0.5 * max(k.bbox_px[2:]))
+            for k in kept
         )
+        if not same:
+            kept.append(obs)
+    return tuple(sorted(kept, key=lambda o: (o.code, o.center_px)))
 
 
 def to_frame_observations(
     result: DetectionResult, frame: int, stamp_ns: int, image_size: tuple[int, int]
 ) -> FrameObservations:
-    """The estimator's view of one frame's detections.
+    """One frame's decoded signs (raw regions without a code are left out).
 
     Args:
         image_size: (width, height) [px].
     """
-    signs = tuple(
-        SignObservation(
-            code=d.code,
-            keypoints_px=dict(d.keypoints_px) or {"center": d.center_px},
-            bbox_px=d.bbox_px,
-            sigma_px=d.sigma_px if math.isfinite(d.sigma_px) and d.sigma_px > 0 else 0.5,
-            score=min(max(d.score, 0.0), 1.0),
-        )
-        for d in result.detections
-        if d.code
-    )
+    signs = tuple(d for d in result.detections if d.code)
     return FrameObservations(
         int(frame), int(stamp_ns), (int(image_size[0]), int(image_size[1])), signs
     )

@@ -3,9 +3,14 @@
 ``observe`` runs the frontend over a frame source and streams every frame's
 observations to ``observations.jsonl`` (one flushed line per frame; on
 Ctrl-C the complete lines are moved into place before the interrupt goes on).
-In tracking mode each frame's signs are searched where the previous frame's
+In tracking mode each frame's signs are searched where an earlier frame's
 pose (``estimator.perframe.solve_frame_pnp``) projects the map; a frame whose
-prediction finds too little falls back to full-frame detection.
+prediction finds too little falls back to full-frame detection. Frame i is
+predicted from frame i - ``track_lag_frames`` (constant velocity), whatever
+the number of workers, so the same input gives the same observations.jsonl
+byte for byte on any machine. Readings that contradict the frame (a code seen
+twice) or the track (another code at a tracked sign's place) are refused and
+listed in report.json.
 
 ``run`` = ``observe`` + ``estimator.estimate.estimate_trajectories`` + the
 estimator's files + plots + ``result.mcap`` (+ ``compare`` against a ground
@@ -15,17 +20,18 @@ truth), with the time split by stage (the paper's Table 5) in ``report.json``.
 from __future__ import annotations
 
 import contextlib
+import enum
 import logging
 import math
 import os
-import threading
+import queue
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
 import numpy as np
 from tqdm import tqdm
@@ -33,10 +39,26 @@ from tqdm import tqdm
 from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.camera import CameraModel, check_image_size, pixel_from_world_point
-from signpose.frontend.observations import FrameObservations
+from signpose.estimator.estimate import EstimateResult, EstimatorSettings, estimate_trajectories
+from signpose.estimator.perframe import solve_frame_pnp
+from signpose.estimator.trajectory import Trajectory
+from signpose.frontend.detector import (
+    DetectionResult,
+    Detector,
+    PredictedSign,
+    SignDetector,
+    to_frame_observations,
+)
+from signpose.frontend.observations import FrameObservations, SignObservation
+from signpose.frontend.sign import ALL_CODES
+from signpose.io import mcap as mcap_io
 from signpose.io.observations import append_observation
-from signpose.io.sources import FrameSource, open_source, prefetch
-from signpose.maps.loader import SignMap
+from signpose.io.results import compare_dir, metrics_table, read_report, write_json, write_outputs
+from signpose.io.sources import Frame, FrameSource, PrefetchedFrame, open_source, prefetch
+from signpose.io.tum import read_tum
+from signpose.maps.loader import SignMap, bundled_map_path, load_map
+from signpose.plots import PlotData, pose_errors, write_plots
+from signpose.sim.flight import SimSettings, simulate
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +67,14 @@ REPORT_NAME = "report.json"
 RESULT_MCAP_NAME = "result.mcap"
 # The stages of the paper's Table 5, plus the ones signpose adds.
 STAGES = ("decode_video", "detect", "decode", "track", "estimate", "outputs")
+# Signs nearer the camera than this [m] are not predicted (behind it or at the lens).
+MIN_PREDICTED_DEPTH_M = 0.5
+# A reading within this many predicted diameters of a tracked sign's predicted
+# centre is at that sign's place (signs on a pylon are several diameters apart).
+CODE_CHANGED_RADIUS = 0.5
+# A reading of a code seen twice agrees with the frame when the frame's PnP
+# with it reprojects within this [px] RMS (as ``max_track_rms_px``).
+DUPLICATE_MAX_RMS_PX = 4.0
 
 
 # --------------------------------------------------------------------------- settings / results
@@ -68,9 +98,15 @@ class ObserveSettings:
             full frame).
         cascade_path: detector cascade XML; "" = the bundled one.
         prefetch: read and decode the input in a background thread.
-        workers: frames detected at once, each in its own thread with its own
-            detector (0 = 2 on a multi-core machine). With more than one,
-            tracking predicts frame i from the pose of frame i - workers.
+        workers: detector threads (0 = 2 on a multi-core machine). At most
+            ``track_lag_frames`` frames are in flight at once, so more
+            workers than that do not help. The output does not depend on it.
+        track_lag_frames: tracking predicts frame i from the pose of frame
+            i - this (and the one before it); it lets that many frames be
+            detected at once, whatever ``workers``.
+        track_refresh_frames: every this many frames after a full-frame
+            search, a tracked frame that misses any predicted sign searches
+            the full frame again.
     """
 
     codes: tuple[str, ...] | None = None
@@ -81,6 +117,8 @@ class ObserveSettings:
     cascade_path: str = ""
     prefetch: bool = True
     workers: int = 0
+    track_lag_frames: int = 2
+    track_refresh_frames: int = 10
 
 
 @dataclass(frozen=True)
@@ -95,6 +133,7 @@ class ObserveResult:
         problems: one line per reading problem (where a truncated input stopped).
         tracked_frames: frames searched only around predictions.
         full_frames: frames searched over the whole image.
+        refused: decoded readings left out of ``frames``, in frame order.
     """
 
     frames: tuple[FrameObservations, ...]
@@ -102,6 +141,7 @@ class ObserveResult:
     problems: tuple[str, ...]
     tracked_frames: int
     full_frames: int
+    refused: tuple[RefusedObservation, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -110,14 +150,14 @@ class RunSettings:
 
     Attributes:
         observe: frontend settings.
-        estimator: ``estimator.estimate.EstimatorSettings`` or None (defaults).
+        estimator: the estimator's settings.
         with_images: put the images (JPEG) into ``result.mcap``.
         plots: write the PNG plots.
         mcap: write ``result.mcap``.
     """
 
     observe: ObserveSettings = field(default_factory=ObserveSettings)
-    estimator: Any = None
+    estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
     with_images: bool = False
     plots: bool = True
     mcap: bool = True
@@ -204,7 +244,7 @@ def predict_signs(
     world_T_cam: np.ndarray,
     codes: tuple[str, ...],
     margin: float = 0.5,
-) -> list[tuple[str, tuple[float, float], float]]:
+) -> list[PredictedSign]:
     """Where the map's signs should appear from ``world_T_cam``.
 
     Args:
@@ -215,8 +255,7 @@ def predict_signs(
         margin: keep signs up to ``margin`` diameters outside the image.
 
     Returns:
-        [(code, (u, v) centre [px], diameter [px])] for the signs in front of
-        the camera that fall in (or near) the image.
+        The signs in front of the camera that fall in (or near) the image.
     """
     signs = [s for s in sign_map.signs if s.code in codes]
     if not signs:
@@ -225,12 +264,12 @@ def predict_signs(
     px, depth = pixel_from_world_point(camera, world_T_cam, centers)
     out = []
     for s, (u, v), z in zip(signs, px, depth, strict=True):
-        if not (z > 0.5 and np.isfinite(u) and np.isfinite(v)):
+        if not (z > MIN_PREDICTED_DEPTH_M and np.isfinite(u) and np.isfinite(v)):
             continue
         d = camera.fx * s.diameter_m / z
         m = margin * d
         if -m <= u <= camera.width - 1 + m and -m <= v <= camera.height - 1 + m:
-            out.append((s.code, (float(u), float(v)), float(d)))
+            out.append(PredictedSign(s.code, (float(u), float(v)), float(d)))
     return out
 
 
@@ -243,51 +282,422 @@ def _extrapolate(prev: np.ndarray, prev2: np.ndarray | None, steps: int = 1) -> 
     return out
 
 
-def _no_prefetch(source: FrameSource):
-    from signpose.io.sources import PrefetchedFrame
+@dataclass(frozen=True)
+class FramePlan:
+    """How one frame is searched.
 
+    Attributes:
+        predictions: the signs expected in view; empty = search the full frame.
+        refresh: a missing predicted sign is enough to search the full frame.
+    """
+
+    predictions: tuple[PredictedSign, ...] = ()
+    refresh: bool = False
+
+
+class FrameTracker:
+    """The running pose that tells the detector where to look, fed frames in order.
+
+    ``plan(i)`` uses only what ``finish`` has been given; the frame loop gives
+    it every frame up to ``i - track_lag_frames`` and no more, so the plan of
+    a frame (and with it every observation) is the same whatever the number
+    of workers and whichever of them finishes first.
+    """
+
+    def __init__(
+        self,
+        sign_map: SignMap | None,
+        camera: CameraModel | None,
+        codes: tuple[str, ...],
+        settings: ObserveSettings,
+    ) -> None:
+        self.sign_map = sign_map
+        self.camera = camera
+        self.codes = codes
+        self.settings = settings
+        self.tracking = settings.tracking and sign_map is not None and camera is not None
+        self._last: tuple[int, np.ndarray] | None = (
+            None  # (position, world_T_cam) of the last frame
+        )
+        self._before_last: np.ndarray | None = None  # the pose of the frame before it
+        self._last_full = -settings.track_refresh_frames  # position of the last full search
+
+    def plan(self, position: int) -> FramePlan:
+        """The search of the frame at ``position`` (0 = the first frame of the flight)."""
+        if not self.tracking or self._last is None:
+            return FramePlan()
+        last_position, world_T_cam = self._last
+        predicted_T = _extrapolate(world_T_cam, self._before_last, position - last_position)
+        predictions = predict_signs(
+            self.sign_map, self.camera, predicted_T, self.codes, self.settings.prediction_margin
+        )
+        refresh = position - self._last_full >= self.settings.track_refresh_frames
+        return FramePlan(tuple(predictions), refresh)
+
+    def finish(
+        self, position: int, obs: FrameObservations, plan: FramePlan, searched_full: bool
+    ) -> tuple[FrameObservations, list[RefusedObservation]]:
+        """The frame's observations once checked for consistency; the pose moves on."""
+        if searched_full:
+            self._last_full = position
+        obs, refused = refuse_changed_codes(obs, plan.predictions)
+        prior = self._last[1] if self._last is not None and self._last[0] == position - 1 else None
+        obs, more = settle_duplicate_codes(obs, self.sign_map, self.camera, prior)
+        refused += more
+        if self.tracking:
+            pose = solve_frame_pnp(obs, self.sign_map, self.camera, prior_world_T_cam=prior)
+            ok = pose.world_T_cam is not None and (
+                not math.isfinite(pose.rms_px) or pose.rms_px <= self.settings.max_track_rms_px
+            )
+            self._before_last = prior if ok else None
+            self._last = (position, pose.world_T_cam) if ok else None
+        return obs, refused
+
+
+# --------------------------------------------------------------------------- consistency
+
+
+class RefusalReason(enum.StrEnum):
+    """Why an observation the decoder accepted was refused; the value is the file token."""
+
+    DUPLICATE_CODE = "duplicate_code"  # its code is seen twice in the frame; not this one
+    CODE_CHANGED = "code_changed"  # read at a tracked sign's predicted place, another code
+
+
+@dataclass(frozen=True)
+class RefusedObservation:
+    """An observation left out of ``observations.jsonl``, and why.
+
+    Attributes:
+        frame: frame index.
+        reason: why.
+        observation: the refused reading.
+        other_px: (u, v) [px] of what it disagreed with: the reading of the
+            same code that was kept (duplicate_code; None when none was), or
+            the tracked sign's predicted centre (code_changed).
+        other_code: the tracked sign's code (code_changed), else the refused
+            reading's own code.
+    """
+
+    frame: int
+    reason: RefusalReason
+    observation: SignObservation
+    other_px: tuple[float, float] | None
+    other_code: str
+
+    def to_json(self) -> dict:
+        """The report's record (pixels rounded to 0.01 px)."""
+        u, v = self.observation.center_px
+        return {
+            "frame": self.frame,
+            "reason": self.reason.value,
+            "code": self.observation.code,
+            "center_px": [round(u, 2), round(v, 2)],
+            "other_code": self.other_code,
+            "other_px": None if self.other_px is None else [round(c, 2) for c in self.other_px],
+        }
+
+
+def _with_signs(obs: FrameObservations, signs: list[SignObservation]) -> FrameObservations:
+    return FrameObservations(obs.frame, obs.stamp_ns, obs.image_size, tuple(signs))
+
+
+def refuse_changed_codes(
+    obs: FrameObservations, predictions: tuple[PredictedSign, ...]
+) -> tuple[FrameObservations, list[RefusedObservation]]:
+    """Refuse readings at a tracked sign's predicted place that give another code.
+
+    A reading whose centre lies within ``CODE_CHANGED_RADIUS`` predicted
+    diameters of a predicted sign, nearer to it than to any predicted sign
+    of its own code, is that sign misread (an occluder took a slot): it is
+    refused with ``code_changed``, never taken for another sign of the map.
+    """
+    kept, refused = [], []
+    for sign in obs.signs:
+        near = _nearest_prediction(sign, predictions)
+        if near is not None and near.code != sign.code:
+            refused.append(
+                RefusedObservation(
+                    obs.frame, RefusalReason.CODE_CHANGED, sign, near.center_px, near.code
+                )
+            )
+        else:
+            kept.append(sign)
+    if not refused:
+        return obs, []
+    return _with_signs(obs, kept), refused
+
+
+def _nearest_prediction(
+    sign: SignObservation, predictions: tuple[PredictedSign, ...]
+) -> PredictedSign | None:
+    """The predicted sign whose place ``sign`` is at, or None."""
+    best, best_d = None, math.inf
+    for p in predictions:
+        d = math.dist(sign.center_px, p.center_px)
+        if d <= CODE_CHANGED_RADIUS * p.diameter_px and d < best_d:
+            best, best_d = p, d
+    if best is None:
+        return None
+    own = [math.dist(sign.center_px, p.center_px) for p in predictions if p.code == sign.code]
+    return None if own and min(own) <= best_d else best
+
+
+def settle_duplicate_codes(
+    obs: FrameObservations,
+    sign_map: SignMap | None,
+    camera: CameraModel | None,
+    prior_world_T_cam: np.ndarray | None = None,
+) -> tuple[FrameObservations, list[RefusedObservation]]:
+    """One reading per code: the one that agrees with the other signs' pose.
+
+    A code seen at two places in one frame is one sign and a misreading. For
+    each candidate, the frame is posed (``solve_frame_pnp``) with it and the
+    frame's signs of other codes; the candidate whose pose reprojects within
+    ``max_rms_px`` and best is kept. Without a map and camera, or when no
+    candidate agrees, every reading of the code is refused (a wrong code puts
+    a landmark metres from its sign; refusing costs one observation).
+    """
+    by_code: dict[str, list[SignObservation]] = {}
+    for sign in obs.signs:
+        by_code.setdefault(sign.code, []).append(sign)
+    twice = {code: signs for code, signs in by_code.items() if len(signs) > 1}
+    if not twice:
+        return obs, []
+    others = [s for s in obs.signs if s.code not in twice]
+    kept, refused = list(others), []
+    for code, candidates in twice.items():
+        keep = _agreeing(obs, others, candidates, sign_map, camera, prior_world_T_cam)
+        if keep is not None:
+            kept.append(keep)
+        for sign in candidates:
+            if sign is not keep:
+                other = None if keep is None else keep.center_px
+                refused.append(
+                    RefusedObservation(obs.frame, RefusalReason.DUPLICATE_CODE, sign, other, code)
+                )
+    kept.sort(key=lambda s: obs.signs.index(s))
+    return _with_signs(obs, kept), refused
+
+
+def _agreeing(
+    obs: FrameObservations,
+    others: list[SignObservation],
+    candidates: list[SignObservation],
+    sign_map: SignMap | None,
+    camera: CameraModel | None,
+    prior_world_T_cam: np.ndarray | None,
+) -> SignObservation | None:
+    """The candidate reading that agrees with the other signs' geometry, or None."""
+    if sign_map is None or camera is None or not others:
+        return None
+    best, best_rms = None, DUPLICATE_MAX_RMS_PX
+    for sign in candidates:
+        trial = _with_signs(obs, [*others, sign])
+        pose = solve_frame_pnp(trial, sign_map, camera, prior_world_T_cam=prior_world_T_cam)
+        if pose.world_T_cam is None or sign.code not in pose.inlier_codes:
+            continue
+        if pose.rms_px < best_rms:
+            best, best_rms = sign, pose.rms_px
+    return best
+
+
+# --------------------------------------------------------------------------- observe
+
+
+def _codes_to_find(settings: ObserveSettings, sign_map: SignMap | None) -> tuple[str, ...]:
+    if settings.codes is not None:
+        return tuple(settings.codes)
+    if sign_map is not None:
+        return tuple(sign_map.codes)
+    return tuple(ALL_CODES)
+
+
+def _no_prefetch(source: FrameSource) -> Iterator[PrefetchedFrame]:
     for frame in source:
         t0 = time.perf_counter()
         gray = frame.gray()
         yield PrefetchedFrame(frame, gray, time.perf_counter() - t0)
 
 
-def _close(it) -> None:
+def _close(it: Iterator) -> None:
     close = getattr(it, "close", None)
     if close is not None:
         close()
 
 
-def _detect_full(det: Any, gray: np.ndarray, codes: tuple[str, ...], mode: str):
-    try:
-        return det.detect(gray, codes, mode=mode)
-    except TypeError:  # a detector without modes
-        return det.detect(gray, codes)
-
-
-def _to_observations(
-    result: Any, frame: int, stamp_ns: int, image_size: tuple[int, int]
-) -> FrameObservations:
-    """A detector result as the frame's observations.
-
-    A tuple of ``SignObservation`` (e.g. from a replay or test detector) is
-    taken as is; anything else goes through ``frontend.detector.to_frame_observations``.
-    """
-    if isinstance(result, tuple):
-        return FrameObservations(frame, stamp_ns, image_size, result)
-    from signpose.frontend.detector import to_frame_observations
-
-    return to_frame_observations(result, frame, stamp_ns, image_size)
-
-
-def make_detector(settings: ObserveSettings):
+def make_detector(settings: ObserveSettings) -> Detector:
     """The frontend's detector (``frontend.detector.SignDetector``)."""
-    from signpose.frontend.detector import SignDetector
-
     return SignDetector(settings.cascade_path or None)
 
 
-# --------------------------------------------------------------------------- observe
+@dataclass(frozen=True)
+class DetectedFrame:
+    """One frame's detector result.
+
+    Attributes:
+        result: what the detector found.
+        tracked: searched around predictions only (no full-frame fallback).
+        spent_s: wall time of the detector call [s].
+    """
+
+    result: DetectionResult
+    tracked: bool
+    spent_s: float
+
+
+class DetectorPool:
+    """Detectors that run frames at once (``workers`` threads), or inline (one).
+
+    Detectors keep no state between frames, so any of them may run any frame.
+    A detector passed in is used alone, inline, in frame order.
+    """
+
+    def __init__(
+        self, settings: ObserveSettings, codes: tuple[str, ...], detector: Detector | None
+    ):
+        self.settings = settings
+        self.codes = codes
+        workers = 1 if detector is not None else settings.workers or min(2, os.cpu_count() or 1)
+        self._idle: queue.SimpleQueue[Detector] = queue.SimpleQueue()
+        self._given = detector
+        self._workers = max(1, workers)
+        self._pool: ThreadPoolExecutor | None = None
+
+    def start(self) -> None:
+        """Build the detectors (a bad model file fails here, once)."""
+        if self._given is not None:
+            self._idle.put(self._given)
+            return
+        for _ in range(self._workers):
+            self._idle.put(make_detector(self.settings))
+        if self._workers > 1:
+            self._pool = ThreadPoolExecutor(self._workers, thread_name_prefix="signpose-detect")
+
+    def submit(self, gray: np.ndarray, plan: FramePlan) -> Future[DetectedFrame]:
+        if self._pool is not None:
+            return self._pool.submit(self._detect, gray, plan)
+        done: Future[DetectedFrame] = Future()
+        done.set_result(self._detect(gray, plan))
+        return done
+
+    def _detect(self, gray: np.ndarray, plan: FramePlan) -> DetectedFrame:
+        det = self._idle.get()
+        try:
+            t = time.perf_counter()
+            if plan.predictions:
+                # The detector searches the full frame itself when a prediction is lost.
+                result = det.detect_tracked(gray, plan.predictions, self.codes, plan.refresh)
+                tracked = not result.fell_back
+            else:
+                result = det.detect(gray, self.codes, self.settings.detector_mode)
+                tracked = False
+            return DetectedFrame(result, tracked, time.perf_counter() - t)
+        finally:
+            self._idle.put(det)
+
+    def close(self, pending: Iterable[Future] = ()) -> None:
+        """Stop: cancel what has not started and wait for the rest."""
+        if self._pool is None:
+            return
+        for job in pending:
+            job.cancel()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+@dataclass
+class _Collected:
+    """What ``observe`` gathers while frames finish (frames in order)."""
+
+    stream: ObservationStream | None
+    bar: tqdm
+    timing: dict[str, float] = field(
+        default_factory=lambda: dict.fromkeys(
+            ("decode_video", "wait_video", "detect", "decode", "track"), 0.0
+        )
+    )
+    frames: list[FrameObservations] = field(default_factory=list)
+    refused: list[RefusedObservation] = field(default_factory=list)
+    tracked_frames: int = 0
+    full_frames: int = 0
+
+    def add(self, obs: FrameObservations, refused: list[RefusedObservation]) -> None:
+        if self.stream is not None:
+            self.stream.append(obs)
+        self.frames.append(obs)
+        self.refused += refused
+        self.bar.update(1)
+
+
+@dataclass(frozen=True)
+class _Pending:
+    position: int
+    frame: Frame
+    plan: FramePlan
+    job: Future[DetectedFrame]
+
+
+def _finish_frame(item: _Pending, tracker: FrameTracker, out: _Collected) -> None:
+    detected = item.job.result()
+    t_done = time.perf_counter()
+    _add_detector_time(out.timing, detected.result, detected.spent_s)
+    if detected.tracked:
+        out.tracked_frames += 1
+    else:
+        out.full_frames += 1
+    frame = item.frame
+    obs = to_frame_observations(detected.result, frame.index, frame.stamp_ns, frame.image_size)
+    obs, refused = tracker.finish(item.position, obs, item.plan, not detected.tracked)
+    out.timing["track"] += time.perf_counter() - t_done
+    out.add(obs, refused)
+
+
+def _finish_detected(pending: deque[_Pending], tracker: FrameTracker, out: _Collected) -> None:
+    """After Ctrl-C: finish the frames whose detection is already complete, in order."""
+    while pending:
+        job = pending[0].job
+        if not job.done() or job.cancelled() or job.exception() is not None:
+            return
+        _finish_frame(pending.popleft(), tracker, out)
+
+
+def _frames_timed(frame_iter: Iterator[PrefetchedFrame], timing: dict[str, float]):
+    """The frames, with the reader's time and the loop's wait for it added to ``timing``."""
+    while True:
+        t0 = time.perf_counter()
+        try:
+            item = next(frame_iter)
+        except StopIteration:
+            return
+        # Reading runs ahead in its own thread: its cost is the reader's time,
+        # the wall-clock wait for it is "wait_video".
+        timing["decode_video"] += item.read_s
+        timing["wait_video"] += time.perf_counter() - t0
+        yield item
+
+
+def _observe_frames(
+    frame_iter: Iterator[PrefetchedFrame],
+    source: FrameSource,
+    camera: CameraModel | None,
+    tracker: FrameTracker,
+    pool: DetectorPool,
+    out: _Collected,
+    pending: deque[_Pending],
+) -> None:
+    """The frame loop: at most ``track_lag_frames`` frames in flight, finished in order."""
+    lag = max(1, tracker.settings.track_lag_frames)
+    for position, item in enumerate(_frames_timed(frame_iter, out.timing)):
+        if position == 0:
+            if camera is not None:
+                check_image_size(camera, *item.frame.image_size, str(source.path))
+            pool.start()
+        plan = tracker.plan(position)
+        pending.append(_Pending(position, item.frame, plan, pool.submit(item.gray, plan)))
+        while len(pending) >= lag:
+            _finish_frame(pending.popleft(), tracker, out)
+    while pending:
+        _finish_frame(pending.popleft(), tracker, out)
 
 
 def observe(
@@ -297,7 +707,7 @@ def observe(
     settings: ObserveSettings | None = None,
     progress: bool = True,
     out_path: str | os.PathLike | None = None,
-    detector: Any = None,
+    detector: Detector | None = None,
 ) -> ObserveResult:
     """Detect and decode the signs in every frame of ``source``.
 
@@ -309,154 +719,53 @@ def observe(
         settings: frontend settings.
         progress: show a tqdm bar over frames.
         out_path: stream the observations to this JSONL file as they are made.
-        detector: a detector object (default: ``make_detector(settings)``).
+        detector: a detector (default: ``make_detector(settings)`` per worker).
 
     Returns:
         The ObserveResult. On KeyboardInterrupt the frames done so far are in
         ``out_path`` (complete lines only) and the interrupt is re-raised.
     """
     s = settings or ObserveSettings()
-    if s.codes is not None:
-        codes = tuple(s.codes)
-    elif sign_map is not None:
-        codes = tuple(sign_map.codes)
-    else:
-        from signpose.frontend.sign import ALL_CODES
-
-        codes = tuple(ALL_CODES)
-    tracking = s.tracking and sign_map is not None and camera is not None
-    if tracking:
-        from signpose.estimator.perframe import solve_frame_pnp
-    timing = dict.fromkeys(("decode_video", "wait_video", "detect", "decode", "track"), 0.0)
+    codes = _codes_to_find(s, sign_map)
+    tracker = FrameTracker(sign_map, camera, codes, s)
+    pool = DetectorPool(s, codes, detector)
     stream = ObservationStream(out_path) if out_path is not None else None
-    frames: list[FrameObservations] = []
-    counts = {"tracked": 0, "full": 0}
-    # Frames in flight at once: with our own detector, two worker threads
-    # (one detector each) overlap frames; frame i is then predicted from the
-    # pose of frame i - 2. A detector passed in is called from this thread only.
-    depth = 1 if detector is not None else max(1, s.workers or min(2, os.cpu_count() or 1))
-    local = threading.local()
-
-    def detector_here():
-        if detector is not None:
-            return detector
-        det = getattr(local, "det", None)
-        if det is None:
-            det = local.det = make_detector(s)
-        return det
-
-    def detect(gray: np.ndarray, predictions) -> tuple[Any, bool, float]:
-        """(result, tracked without falling back, seconds spent) for one frame."""
-        det = detector_here()
-        t = time.perf_counter()
-        if predictions:
-            # The detector searches the full frame itself when a prediction is lost.
-            result = det.detect_tracked(gray, predictions, codes)
-            tracked = not getattr(result, "fell_back", False)
-        else:
-            result, tracked = _detect_full(det, gray, codes, s.detector_mode), False
-        return result, tracked, time.perf_counter() - t
-
-    pool = ThreadPoolExecutor(depth, thread_name_prefix="signpose-detect") if depth > 1 else None
-    prev_T = prev2_T = None
-    size_checked = False
-    pending: deque = deque()
     bar = tqdm(total=source.length, desc="observe", unit="frame", disable=not progress)
-    frame_iter: Iterator = prefetch(source) if s.prefetch else _no_prefetch(source)
-
-    def finish_one() -> None:
-        nonlocal prev_T, prev2_T
-        frame, job = pending.popleft()
-        result, was_tracked, spent_s = job if pool is None else job.result()
-        t_done = time.perf_counter()
-        _add_detector_time(timing, result, spent_s)
-        counts["tracked" if was_tracked else "full"] += 1
-        obs = _to_observations(result, frame.index, frame.stamp_ns, frame.image_size)
-        if tracking:
-            pose = solve_frame_pnp(obs, sign_map, camera, prior_world_T_cam=prev_T)
-            ok = pose.world_T_cam is not None and (
-                not math.isfinite(pose.rms_px) or pose.rms_px <= s.max_track_rms_px
-            )
-            prev2_T = prev_T if ok else None
-            prev_T = pose.world_T_cam if ok else None
-            timing["track"] += time.perf_counter() - t_done
-        if stream is not None:
-            stream.append(obs)
-        frames.append(obs)
-        bar.update(1)
-
+    out = _Collected(stream, bar)
+    frame_iter = prefetch(source) if s.prefetch else _no_prefetch(source)
+    pending: deque[_Pending] = deque()
     try:
-        while True:
-            t0 = time.perf_counter()
-            try:
-                item = next(frame_iter)
-            except StopIteration:
-                break
-            frame, gray = item.frame, item.gray
-            t1 = time.perf_counter()
-            # Reading runs ahead in its own thread: its cost is the reader's time,
-            # the wall-clock wait for it is "wait_video".
-            timing["decode_video"] += item.read_s
-            timing["wait_video"] += t1 - t0
-            if not size_checked:
-                if camera is not None:
-                    check_image_size(camera, *frame.image_size, str(source.path))
-                size_checked = True
-                detector_here()  # a bad model file fails here, once
-            predictions = None
-            if tracking and prev_T is not None:
-                predicted_T = _extrapolate(prev_T, prev2_T, steps=len(pending) + 1)
-                predictions = predict_signs(
-                    sign_map, camera, predicted_T, codes, s.prediction_margin
-                )
-            if pool is None:
-                pending.append((frame, detect(gray, predictions)))
-            else:
-                pending.append((frame, pool.submit(detect, gray, predictions)))
-            while len(pending) >= depth:
-                finish_one()
-        while pending:
-            finish_one()
-    except KeyboardInterrupt:
+        _observe_frames(frame_iter, source, camera, tracker, pool, out, pending)
+    except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt):
+            _finish_detected(pending, tracker, out)
         bar.close()
         _close(frame_iter)
-        _stop(pool, pending)
-        if stream is not None:
+        pool.close(p.job for p in pending)
+        if stream is not None and isinstance(exc, KeyboardInterrupt):
             kept = stream.finish_partial()
             if kept is not None:
                 log.info("interrupted: %d complete frames kept in %s", stream.lines, kept)
-        raise
-    except BaseException:
-        bar.close()
-        _close(frame_iter)
-        _stop(pool, pending)
-        if stream is not None:
+        elif stream is not None:
             stream.abort()
         raise
     bar.close()
-    if pool is not None:
-        pool.shutdown(wait=True)
+    pool.close()
     if stream is not None:
         stream.finish()
     return ObserveResult(
-        tuple(frames), timing, tuple(source.problems), counts["tracked"], counts["full"]
+        frames=tuple(out.frames),
+        timing_s=out.timing,
+        problems=tuple(source.problems),
+        tracked_frames=out.tracked_frames,
+        full_frames=out.full_frames,
+        refused=tuple(out.refused),
     )
 
 
-def _stop(pool: ThreadPoolExecutor | None, pending: deque) -> None:
-    if pool is None:
-        return
-    for _, job in pending:
-        job.cancel()
-    pool.shutdown(wait=True, cancel_futures=True)
-
-
-def _add_detector_time(timing: dict[str, float], result: Any, wall_s: float) -> None:
+def _add_detector_time(timing: dict[str, float], result: DetectionResult, wall_s: float) -> None:
     """Split the detector's wall time into detect and decode (the detector reports ms)."""
-    split = getattr(result, "timing", None)
-    decode_s = 0.0
-    if isinstance(split, dict) and "decode" in split:
-        decode_s = min(float(split["decode"]) / 1e3, wall_s)
+    decode_s = min(float(result.timing.get("decode", 0.0)) / 1e3, wall_s)
     timing["decode"] += decode_s
     timing["detect"] += wall_s - decode_s
 
@@ -487,10 +796,10 @@ def check_codes_seen(frames: tuple[FrameObservations, ...], sign_map: SignMap, w
         )
 
 
-def _trajectories(estimate) -> tuple[dict, dict]:
+def _trajectories(
+    estimate: EstimateResult,
+) -> tuple[dict[str, Trajectory], dict[str, np.ndarray]]:
     """method -> Trajectory (NaN where no pose), method -> (N, 3) sigma [m]."""
-    from signpose.estimator.trajectory import Trajectory
-
     trajs, sigmas = {}, {}
     for name, m in estimate.methods.items():
         T = np.array(m.world_T_cam, dtype=float, copy=True)
@@ -507,11 +816,21 @@ def _trajectories(estimate) -> tuple[dict, dict]:
     return trajs, sigmas
 
 
-def _valid_only(traj):
-    from signpose.estimator.trajectory import Trajectory
-
+def _valid_only(traj: Trajectory) -> Trajectory:
     ok = np.all(np.isfinite(traj.world_t_cam), axis=1)
     return Trajectory(traj.stamps_s[ok], traj.world_t_cam[ok], traj.quat_xyzw[ok])
+
+
+@dataclass(frozen=True)
+class _Flight:
+    """One flight's inputs as ``run`` was given them."""
+
+    input_path: str | os.PathLike
+    topic: str | None
+    fps: float | None
+
+    def open(self) -> FrameSource:
+        return open_source(self.input_path, topic=self.topic, fps=self.fps)
 
 
 def run(
@@ -525,7 +844,7 @@ def run(
     fps: float | None = None,
     settings: RunSettings | None = None,
     progress: bool = True,
-    detector: Any = None,
+    detector: Detector | None = None,
     echo: Callable[[str], None] | None = None,
 ) -> RunResult:
     """Observe, estimate and write every output of one flight into ``out_dir``.
@@ -540,141 +859,138 @@ def run(
         fps: frame rate of an image folder without a times CSV.
         settings: what to run.
         progress: tqdm bars.
-        detector: detector object (tests); default ``make_detector``.
+        detector: a detector (tests); default ``make_detector``.
         echo: where to print warnings for the user (e.g. stderr), or None.
 
     Returns:
         The RunResult; ``report.json`` in ``out_dir`` holds the same numbers.
     """
-    from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
-    from signpose.io.tum import read_tum
-
     s = settings or RunSettings()
     t_start = time.perf_counter()
     out = ensure_dir(out_dir)
+    flight = _Flight(input_path, topic, fps)
     gt = read_tum(gt_path) if gt_path is not None else None
-    source = open_source(input_path, topic=topic, fps=fps)
+    source = flight.open()
     cam = _camera_for(source, camera)
     obs = observe(
-        source,
-        sign_map,
-        cam,
-        s.observe,
-        progress,
-        out_path=out / OBSERVATIONS_NAME,
-        detector=detector,
+        source, sign_map, cam, s.observe, progress, out / OBSERVATIONS_NAME, detector=detector
     )
     for line in obs.problems:
         if echo is not None:
             echo(f"warning: {line}")
-    files: list[Path] = [out / OBSERVATIONS_NAME]
     check_codes_seen(obs.frames, sign_map, str(source.path))
     t0 = time.perf_counter()
-    est_settings = s.estimator if s.estimator is not None else EstimatorSettings()
-    estimate = estimate_trajectories(list(obs.frames), sign_map, cam, est_settings, progress)
-    t_estimate = time.perf_counter() - t0
+    estimate = estimate_trajectories(list(obs.frames), sign_map, cam, s.estimator, progress)
+    timing = {**obs.timing_s, "estimate": time.perf_counter() - t0}
 
     t0 = time.perf_counter()
     trajs, sigmas = _trajectories(estimate)
-    files += _write_estimator_outputs(out, estimate)
-    if s.plots:
-        from signpose.plots import PlotData, write_plots
+    files = [out / OBSERVATIONS_NAME]
+    files += _write_run_files(
+        out, s, flight, sign_map, cam, obs, estimate, trajs, sigmas, gt, progress
+    )
+    comparison, table = _compare(out, Path(gt_path)) if gt_path is not None else (None, "")
+    timing["outputs"] = time.perf_counter() - t0
+    timing["total"] = time.perf_counter() - t_start
+    n = len(obs.frames)
+    rmse = {} if gt is None else {k: position_rmse(v, gt) for k, v in trajs.items()}
+    for name, metrics in (comparison or {}).items():
+        if isinstance(metrics, dict) and metrics.get("ate_rmse") is not None:
+            rmse[name] = float(metrics["ate_rmse"])
+    result = RunResult(
+        out_dir=out,
+        n_frames=n,
+        coverage={name: float(m.coverage) for name, m in estimate.methods.items()},
+        position_rmse_m=rmse,
+        comparison=comparison,
+        comparison_table=table,
+        timing_s=timing,
+        fps=n / timing["total"] if timing["total"] > 0 else float("nan"),
+        problems=tuple(obs.problems),
+        files=tuple(files),
+    )
+    _add_to_report(out / REPORT_NAME, "pipeline", _pipeline_section(result, source, obs, s))
+    if out / REPORT_NAME not in files:
+        result = replace(result, files=(*result.files, out / REPORT_NAME))
+    return result
 
+
+def _write_run_files(
+    out: Path,
+    s: RunSettings,
+    flight: _Flight,
+    sign_map: SignMap,
+    camera: CameraModel,
+    obs: ObserveResult,
+    estimate: EstimateResult,
+    trajs: dict[str, Trajectory],
+    sigmas: dict[str, np.ndarray],
+    gt: Trajectory | None,
+    progress: bool,
+) -> list[Path]:
+    """The estimator's files, the plots and ``result.mcap``, as settings ask."""
+    files = [Path(p) for p in write_outputs(out, estimate)]
+    if s.plots:
         stamps = np.array([f.stamp_ns for f in obs.frames], float) * 1e-9
         map_codes = set(sign_map.codes)
         seen = np.array([sum(o.code in map_codes for o in f.signs) for f in obs.frames])
         files += write_plots(out, PlotData(sign_map, trajs, sigmas, gt, stamps, seen))
     if s.mcap:
-        from signpose.io import mcap as mcap_io
-
         images = None
         if s.with_images:
-            images = ((f.stamp_ns, f.image) for f in open_source(input_path, topic=topic, fps=fps))
-        valid = {k: _valid_only(v) for k, v in trajs.items()}
+            images = ((f.stamp_ns, f.image) for f in flight.open())
         mcap_io.write_result_mcap(
             out / RESULT_MCAP_NAME,
             sign_map,
             list(obs.frames),
-            valid,
-            cam,
+            {k: _valid_only(v) for k, v in trajs.items()},
+            camera,
             images,
             progress=progress,
         )
         files.append(out / RESULT_MCAP_NAME)
-    comparison, table = None, ""
-    if gt_path is not None:
-        comparison, table = _compare(out, Path(gt_path))
-    t_outputs = time.perf_counter() - t0
-    total = time.perf_counter() - t_start
-    timing = dict(obs.timing_s)
-    timing["estimate"] = t_estimate
-    timing["outputs"] = t_outputs
-    timing["total"] = total
-    n = len(obs.frames)
-    coverage = {name: float(m.coverage) for name, m in estimate.methods.items()}
-    rmse = {} if gt is None else {k: position_rmse(v, gt) for k, v in trajs.items()}
-    for name, metrics in (comparison or {}).items():
-        if isinstance(metrics, dict) and metrics.get("ate_rmse") is not None:
-            rmse[name] = float(metrics["ate_rmse"])
-    fps_run = n / total if total > 0 else float("nan")
-    section = {
+    return files
+
+
+def _pipeline_section(
+    result: RunResult, source: FrameSource, obs: ObserveResult, s: RunSettings
+) -> dict:
+    """The ``pipeline`` section of report.json."""
+    n = result.n_frames
+    counts = {reason.value: 0 for reason in RefusalReason}
+    for r in obs.refused:
+        counts[r.reason.value] += 1
+    return {
         "input": str(source.path),
         "input_kind": source.kind,
         "frames": n,
         "problems": list(obs.problems),
         "tracking": {"tracked_frames": obs.tracked_frames, "full_frames": obs.full_frames},
-        "coverage": coverage,
-        "position_rmse_m": rmse,
-        "timing_s": {k: round(v, 4) for k, v in timing.items()},
+        "refused": {"counts": counts, "observations": [r.to_json() for r in obs.refused]},
+        "coverage": result.coverage,
+        "position_rmse_m": result.position_rmse_m,
+        "timing_s": {k: round(v, 4) for k, v in result.timing_s.items()},
         "timing_ms_per_frame": {
-            k: round(1000 * v / max(n, 1), 3) for k, v in timing.items() if k != "total"
+            k: round(1000 * v / max(n, 1), 3) for k, v in result.timing_s.items() if k != "total"
         },
-        "frames_per_second": round(fps_run, 3),
+        "frames_per_second": round(result.fps, 3),
         "settings": {"observe": asdict(s.observe), "with_images": s.with_images},
     }
-    _add_to_report(out / REPORT_NAME, "pipeline", section)
-    if out / REPORT_NAME not in files:
-        files.append(out / REPORT_NAME)
-    return RunResult(
-        out,
-        n,
-        coverage,
-        rmse,
-        comparison,
-        table,
-        timing,
-        fps_run,
-        tuple(obs.problems),
-        tuple(files),
-    )
 
 
-def position_rmse(traj, gt) -> float:
+def position_rmse(traj: Trajectory, gt: Trajectory) -> float:
     """RMS position error [m] of ``traj`` against ``gt`` at the stamps both have (NaN: none)."""
-    from signpose.plots import pose_errors
-
     _, dp, _ = pose_errors(_valid_only(traj), gt)
     return float(np.sqrt(np.mean(dp**2))) if len(dp) else float("nan")
 
 
-def _write_estimator_outputs(out: Path, estimate) -> list[Path]:
-    """The estimator's files: ``<method>.tum``, ``trajectory.csv``, ``report.json``."""
-    from signpose.io.results import write_outputs
-
-    return [Path(p) for p in write_outputs(out, estimate)]
-
-
 def _compare(out: Path, gt_path: Path) -> tuple[dict, str]:
     """The estimator's comparison (added to report.json): (method -> metrics, table)."""
-    from signpose.io.results import compare_dir, metrics_table
-
     return compare_dir(out, gt_path), metrics_table(out)
 
 
 def _add_to_report(path: Path, key: str, section: dict) -> None:
     """Add ``section`` under ``key`` to the estimator's report.json (its module writes it)."""
-    from signpose.io.results import read_report, write_json
-
     report = read_report(path) if path.exists() else {}
     report[key] = section
     write_json(path, report)
@@ -704,9 +1020,6 @@ def run_demo(
     Results (observations, trajectories, comparison, plots, result.mcap) go
     into ``out_dir`` itself.
     """
-    from signpose.maps.loader import bundled_map_path, load_map
-    from signpose.sim.flight import SimSettings, simulate
-
     out = ensure_dir(out_dir)
     sign_map = load_map(bundled_map_path())
     sim = simulate(

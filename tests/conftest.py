@@ -116,3 +116,65 @@ def estimator_scene(
         sign_map, camera, n_frames, rng, settings, fps=n_frames / duration_s, seed=seed
     )
     return sign_map, camera, frames, gt, truth
+
+
+# ---------------------------------------------------------------- pipeline, batch, CLI
+# Builders for tests/test_pipeline.py, test_batch.py and test_cli_errors.py.
+
+
+class TruthDetector:
+    """A ``frontend.detector.Detector`` that replays ``boxes.jsonl``: frame i's truth.
+
+    The i-th call answers with frame i's true keypoints (signs cut by the
+    border left out), so it must be called in frame order. ``interrupt_at``:
+    raise KeyboardInterrupt on that call (Ctrl-C in the frame loop).
+    """
+
+    def __init__(self, boxes: list[dict], interrupt_at: int | None = None):
+        self.boxes = boxes
+        self.interrupt_at = interrupt_at
+        self.calls: list[str] = []
+        self.predictions: list[list] = []
+
+    def _next(self, kind: str, codes):
+        from signpose.frontend.detector import DetectionResult, DetectorMode
+        from signpose.frontend.observations import SignObservation
+
+        i = len(self.calls)
+        if i == self.interrupt_at:
+            raise KeyboardInterrupt
+        self.calls.append(kind)
+        signs = self.boxes[i]["signs"] if i < len(self.boxes) else []
+        found = tuple(
+            SignObservation(
+                s["code"],
+                {k: (float(v[0]), float(v[1])) for k, v in s["keypoints_px"].items()},
+                tuple(s["bbox_px"]),
+            )
+            for s in signs
+            if not s["truncated"] and (codes is None or s["code"] in codes)
+        )
+        mode = DetectorMode.TRACK if kind == "track" else DetectorMode.FAST
+        return DetectionResult(found, len(found), 0, mode=mode)
+
+    def detect(self, image, codes=None, mode="fast"):
+        return self._next("full", codes)
+
+    def detect_tracked(self, image, predictions, codes=None, refresh=False):
+        self.predictions.append(list(predictions))
+        return self._next("track", codes)
+
+
+def simulate_tiny(out: Path, frames: int = 16, fmt: str = "mp4", **kw):
+    """A small flight (320x240) in front of the bundled pylon."""
+    from signpose.sim.flight import SimSettings, simulate
+
+    settings = SimSettings(frames=frames, width=320, height=240, format=fmt, **kw)
+    return simulate(load_map(bundled_map_path()), out, settings, progress=False)
+
+
+def truth_detector(sim, **kw) -> TruthDetector:
+    """A TruthDetector replaying the simulated flight ``sim``."""
+    from signpose.sim.flight import read_boxes
+
+    return TruthDetector(read_boxes(sim.boxes_path), **kw)

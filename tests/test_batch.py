@@ -6,8 +6,8 @@ import csv
 import shutil
 
 import pytest
+from conftest import TruthDetector, simulate_tiny, truth_detector
 from signpose.maps.loader import bundled_map_path
-from test_pipeline import TruthDetector, simulate_tiny, truth_detector
 
 from signpose import batch, pipeline
 from signpose.cli import main

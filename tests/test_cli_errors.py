@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import simulate_tiny, truth_detector
 from signpose.estimator.camera import pinhole_camera
 from signpose.maps.loader import bundled_map_path
-from test_pipeline import simulate_tiny, truth_detector
 
 from signpose import pipeline
 from signpose.cli import main

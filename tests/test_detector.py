@@ -8,14 +8,17 @@ import cv2
 import numpy as np
 import pytest
 from signpose.frontend.detector import (
-    Detection,
     DetectionResult,
+    DetectorMode,
     DetectorSettings,
+    PredictedSign,
     SignDetector,
     group_merge,
+    one_per_sign,
     paper_merge,
     to_frame_observations,
 )
+from signpose.frontend.observations import SignObservation
 from signpose.maps.loader import bundled_map_path, load_map
 
 
@@ -142,12 +145,51 @@ def test_tracking_finds_predicted_signs_and_falls_back_when_lost(frame):
     assert _n_true(lost, truth) >= 0.8 * ceiling
 
 
+def test_tracking_with_refresh_needs_every_predicted_sign(frame):
+    gray, truth, _ = frame
+    det = SignDetector()
+    preds = [
+        PredictedSign(s["code"], tuple(s["center_px"]), s["diameter_px"]) for s in truth["signs"]
+    ]
+    # One real sign and one where there is none: half is found, enough without refresh.
+    found = next(
+        p for p in preds if p.code in {d.code for d in det.detect_tracked(gray, preds).detections}
+    )
+    half = [found, PredictedSign("1111" if found.code != "1111" else "0000", (60.0, 60.0), 40.0)]
+    assert not det.detect_tracked(gray, half).fell_back
+    assert det.detect_tracked(gray, half, refresh=True).fell_back
+    # Stateless: the same call gives the same answer again.
+    assert not det.detect_tracked(gray, half).fell_back
+
+
+def _obs(code: str, u: float, v: float, size: float, score: float) -> SignObservation:
+    return SignObservation(
+        code, {"center": (u, v)}, (u - size / 2, v - size / 2, size, size), 0.3, score
+    )
+
+
+def test_one_per_sign_merges_regions_of_one_sign_and_keeps_a_code_seen_twice():
+    readings = [
+        _obs("0101", 100.0, 100.0, 40.0, 0.5),
+        _obs("0101", 104.0, 98.0, 44.0, 0.9),  # the same sign, a better reading
+        _obs("0101", 400.0, 100.0, 40.0, 0.7),  # the same code elsewhere: kept for the pipeline
+        _obs("0011", 250.0, 300.0, 40.0, 0.6),
+    ]
+    kept = one_per_sign(readings)
+    assert [(o.code, o.center_px) for o in kept] == [
+        ("0011", (250.0, 300.0)),
+        ("0101", (104.0, 98.0)),
+        ("0101", (400.0, 100.0)),
+    ]
+
+
 def test_to_frame_observations_keeps_codes_and_keypoints():
-    det = Detection("0101", (10.0, 20.0), (0, 0, 30, 30), {"center": (10.0, 20.0)}, 0.9, 0.3)
-    obs = to_frame_observations(DetectionResult((det,), 1, 0), 7, 123, (1920, 1080))
+    det = _obs("0101", 10.0, 20.0, 30.0, 0.9)
+    raw = SignObservation("", {"center": (5.0, 5.0)}, (0, 0, 10, 10), float("inf"), 0.5)
+    result = DetectionResult((det, raw), 2, 0, mode=DetectorMode.FAST)
+    obs = to_frame_observations(result, 7, 123, (1920, 1080))
     assert obs.frame == 7 and obs.stamp_ns == 123 and obs.image_size == (1920, 1080)
-    assert obs.signs[0].code == "0101" and obs.signs[0].center_px == (10.0, 20.0)
-    assert obs.signs[0].sigma_px == 0.3
+    assert obs.signs == (det,)  # the region without a code is left out
 
 
 def test_cli_prints_one_json_line_per_image(frame, tmp_path, capsys):

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from signpose.frontend.observations import FrameObservations, SignObservation
+from conftest import simulate_tiny, truth_detector
+from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose import pipeline
@@ -18,56 +19,6 @@ from signpose.io.sources import open_source
 from signpose.plots import PlotData, plot_errors, write_plots
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-class TruthDetector:
-    """Replays ``boxes.jsonl``: frame i's truth keypoints as the i-th call's result.
-
-    ``interrupt_at``: raise KeyboardInterrupt on that call (Ctrl-C in the frame loop).
-    """
-
-    def __init__(self, boxes: list[dict], interrupt_at: int | None = None):
-        self.boxes = boxes
-        self.interrupt_at = interrupt_at
-        self.calls: list[str] = []
-        self.predictions: list[list] = []
-
-    def _next(self, kind: str, codes) -> tuple[SignObservation, ...]:
-        i = len(self.calls)
-        if i == self.interrupt_at:
-            raise KeyboardInterrupt
-        self.calls.append(kind)
-        signs = self.boxes[i]["signs"] if i < len(self.boxes) else []
-        return tuple(
-            SignObservation(
-                s["code"],
-                {k: (float(v[0]), float(v[1])) for k, v in s["keypoints_px"].items()},
-                tuple(s["bbox_px"]),
-            )
-            for s in signs
-            if not s["truncated"] and (codes is None or s["code"] in codes)
-        )
-
-    def detect(self, gray, codes=None, mode="fast"):
-        return self._next("full", codes)
-
-    def detect_tracked(self, gray, predictions, codes=None):
-        self.predictions.append(list(predictions))
-        return self._next("track", codes)
-
-
-def simulate_tiny(out: Path, frames: int = 16, fmt: str = "mp4", **kw):
-    """A small flight (320x240) in front of the bundled pylon."""
-    from signpose.sim.flight import SimSettings, simulate
-
-    settings = SimSettings(frames=frames, width=320, height=240, format=fmt, **kw)
-    return simulate(load_map(bundled_map_path()), out, settings, progress=False)
-
-
-def truth_detector(sim, **kw) -> TruthDetector:
-    from signpose.sim.flight import read_boxes
-
-    return TruthDetector(read_boxes(sim.boxes_path), **kw)
 
 
 @pytest.fixture(scope="module")
