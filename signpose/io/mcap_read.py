@@ -8,10 +8,8 @@ truncated or corrupt log yields what is readable and then says where it stopped.
 from __future__ import annotations
 
 import json
-import logging
 import os
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -20,49 +18,15 @@ from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
 from signpose.core.errors import InputError
-from signpose.io.messages import CAMERA_SCHEMAS, IMAGE_SCHEMAS
-
-log = logging.getLogger(__name__)
+from signpose.io.messages import LogChannel, LogMessage
 
 JSON_ENCODING = "json"
+MAX_RECORD_BYTES = 1 << 30  # one record larger than this is taken for corrupt data
 
 
-@dataclass(frozen=True)
-class McapChannel:
-    """One channel of a log.
-
-    Attributes:
-        topic: channel topic.
-        schema_name: e.g. ``foxglove.CompressedImage``, ``sensor_msgs/msg/Image``.
-        message_encoding: ``json``, ``cdr``, ...
-        message_count: number of messages, or None when the log has no summary.
-    """
-
-    topic: str
-    schema_name: str
-    message_encoding: str
-    message_count: int | None
-
-    @property
-    def is_image(self) -> bool:
-        return self.schema_name in IMAGE_SCHEMAS
-
-    @property
-    def is_camera(self) -> bool:
-        return self.schema_name in CAMERA_SCHEMAS
-
-    def describe(self) -> str:
-        return f"{self.topic} ({self.schema_name or 'no schema'})"
-
-
-@dataclass(frozen=True)
-class McapMessage:
-    """One decoded message: ``decoded`` is a dict (JSON) or a ROS 2 message object."""
-
-    topic: str
-    schema_name: str
-    log_time_ns: int
-    decoded: Any
+# The names this module had before the channel and message types became shared.
+McapChannel = LogChannel
+McapMessage = LogMessage
 
 
 class McapLog:
@@ -73,24 +37,39 @@ class McapLog:
     and, when the data stops early, sets ``problem`` to where and why.
     """
 
-    def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
-        if not self.path.is_file():
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        name: str | os.PathLike | None = None,
+        decompress: Callable[[bytes], bytes] | None = None,
+    ):
+        """Args:
+        path: the ``.mcap`` file.
+        name: the path to name in messages (the user's file when ``path`` is a
+            decompressed temporary copy); ``path`` when None.
+        decompress: applied to every message payload before decoding (rosbag2's
+            per-message compression), or None.
+        """
+        self._file = Path(path)
+        self.path = Path(name) if name is not None else self._file
+        if not self._file.is_file():
             raise InputError(f"{self.path}: file not found")
+        self._decompress = decompress
         self.problem: str | None = None
         self.channels = self._read_channels()
 
     # ------------------------------------------------------------------ channels
-    def _read_channels(self) -> tuple[McapChannel, ...]:
+    def _read_channels(self) -> tuple[LogChannel, ...]:
         try:
-            with open(self.path, "rb") as f:
+            with open(self._file, "rb") as f:
                 summary = make_reader(f).get_summary()
         except Exception:  # noqa: BLE001 - any failure: fall back to scanning the data
             summary = None
         if summary is not None and summary.channels:
             counts = summary.statistics.channel_message_counts if summary.statistics else {}
             return tuple(
-                McapChannel(
+                LogChannel(
                     c.topic,
                     summary.schemas[c.schema_id].name if c.schema_id in summary.schemas else "",
                     c.message_encoding,
@@ -112,7 +91,7 @@ class McapLog:
         if not channels and scan_problem:
             raise InputError(f"{self.path}: not a readable MCAP log ({scan_problem})")
         return tuple(
-            McapChannel(
+            LogChannel(
                 c.topic,
                 schemas[c.schema_id].name if c.schema_id in schemas else "",
                 c.message_encoding,
@@ -132,8 +111,8 @@ class McapLog:
 
     # ------------------------------------------------------------------ records
     def _records(self, count_into: dict[int, int] | None = None) -> Iterator[Any]:
-        with open(self.path, "rb") as f:
-            reader = StreamReader(f, record_size_limit=1 << 30)
+        with open(self._file, "rb") as f:
+            reader = StreamReader(f, record_size_limit=MAX_RECORD_BYTES)
             n_messages = 0
             try:
                 for record in reader.records:
@@ -146,7 +125,7 @@ class McapLog:
                     if kind == "Footer":
                         return
             except Exception as exc:  # noqa: BLE001 - corrupt data: stop and say where
-                size = self.path.stat().st_size
+                size = self._file.stat().st_size
                 at = min(f.tell(), size)
                 reason = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
                 reason = f"{type(exc).__name__}: {reason}" if reason else type(exc).__name__
@@ -155,13 +134,17 @@ class McapLog:
                     f"({reason}); the file is truncated or corrupt"
                 )
 
-    def messages(self, topics: Iterable[str]) -> Iterator[McapMessage]:
-        """Decoded messages of ``topics`` in file order (log order for signpose's logs)."""
+    def messages(self, topics: Iterable[str]) -> Iterator[LogMessage]:
+        """Decoded messages of ``topics`` in file order (log order for signpose's logs).
+
+        A message that cannot be decoded is yielded with ``error`` set; damaged
+        data ends the stream and sets ``problem``.
+        """
         wanted = set(topics)
         ros2 = DecoderFactory()
         schemas: dict[int, Any] = {}
         channels: dict[int, Any] = {}
-        decoders: dict[int, Any] = {}
+        decoders: dict[int, Callable[[bytes], Any]] = {}
         self.problem = None
         for record in self._records():
             kind = type(record).__name__
@@ -179,17 +162,23 @@ class McapLog:
                 if decoder is None:
                     decoder = _decoder_for(ch, sch, ros2, self.path)
                     decoders[ch.id] = decoder
-                try:
-                    decoded = decoder(record.data)
-                except Exception as exc:  # noqa: BLE001 - one bad message is a value
-                    log.warning("%s: %s: cannot decode a message (%s)", self.path, ch.topic, exc)
-                    continue
-                yield McapMessage(ch.topic, name, int(record.log_time), decoded)
+                yield self._decoded(ch.topic, name, int(record.log_time), record.data, decoder)
+
+    def _decoded(
+        self, topic: str, schema_name: str, log_time_ns: int, data: bytes, decoder
+    ) -> LogMessage:
+        try:
+            if self._decompress is not None:
+                data = self._decompress(data)
+            return LogMessage(topic, schema_name, log_time_ns, decoder(data))
+        except Exception as exc:  # noqa: BLE001 - one bad message is a value
+            text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            return LogMessage(topic, schema_name, log_time_ns, None, f"cannot decode ({text})")
 
 
-def _decoder_for(channel, schema_record, ros2_factory, path: Path):
+def _decoder_for(channel, schema_record, ros2_factory, path: Path) -> Callable[[bytes], Any]:
     if channel.message_encoding == JSON_ENCODING:
-        return lambda data: json.loads(data)
+        return _json_message
     decoder = ros2_factory.decoder_for(channel.message_encoding, schema_record)
     if decoder is None:
         raise InputError(
@@ -199,6 +188,11 @@ def _decoder_for(channel, schema_record, ros2_factory, path: Path):
     return decoder
 
 
+def _json_message(data: bytes) -> Any:
+    """One JSON message; bytes that are not UTF-8 JSON raise ValueError."""
+    return json.loads(data.decode("utf-8"))
+
+
 def read_json_messages(path: str | os.PathLike, topic: str) -> list[dict]:
     """All JSON messages of ``topic`` (for tests and tools)."""
-    return [m.decoded for m in McapLog(path).messages([topic])]
+    return [m.decoded for m in McapLog(path).messages([topic]) if not m.error]

@@ -11,7 +11,11 @@ Schemas read: ``foxglove.CompressedImage`` / ``foxglove.RawImage`` and
 from __future__ import annotations
 
 import base64
-from typing import Any
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -28,6 +32,67 @@ IMAGE_SCHEMAS = (
 CAMERA_SCHEMAS = ("foxglove.CameraCalibration", "sensor_msgs/msg/CameraInfo")
 
 
+@dataclass(frozen=True)
+class LogChannel:
+    """One channel (topic) of a log: an MCAP channel or a rosbag2 topic.
+
+    Attributes:
+        topic: channel topic.
+        schema_name: e.g. ``foxglove.CompressedImage``, ``sensor_msgs/msg/Image``.
+        message_encoding: ``json``, ``cdr``, ...
+        message_count: number of messages, or None when the log does not say.
+    """
+
+    topic: str
+    schema_name: str
+    message_encoding: str
+    message_count: int | None
+
+    @property
+    def is_image(self) -> bool:
+        return self.schema_name in IMAGE_SCHEMAS
+
+    @property
+    def is_camera(self) -> bool:
+        return self.schema_name in CAMERA_SCHEMAS
+
+    def describe(self) -> str:
+        return f"{self.topic} ({self.schema_name or 'no schema'})"
+
+
+@dataclass(frozen=True)
+class LogMessage:
+    """One message of a log, decoded.
+
+    Attributes:
+        topic: its topic.
+        schema_name: its type, as ``LogChannel.schema_name``.
+        log_time_ns: the time the recorder received it [ns].
+        decoded: a dict (JSON) or a ROS 2 message object; None when ``error`` is set.
+        error: why the message could not be decoded ("" when it was).
+    """
+
+    topic: str
+    schema_name: str
+    log_time_ns: int
+    decoded: Any
+    error: str = ""
+
+
+class MessageLog(Protocol):
+    """A recorded log of messages: an MCAP file, a rosbag2 bag or one of its files.
+
+    ``messages()`` streams in file order and never raises for damaged data: it
+    stops, and ``problem`` then says where and why (None when it read to the end).
+    """
+
+    path: Path
+    channels: tuple[LogChannel, ...]
+    problem: str | None
+
+    def messages(self, topics: Iterable[str]) -> Iterator[LogMessage]: ...
+
+
 def _get(msg: Any, key: str, default=None):
     if isinstance(msg, dict):
         return msg.get(key, default)
@@ -39,21 +104,45 @@ def _as_bytes(data: Any) -> bytes:
         return base64.b64decode(data)
     if isinstance(data, bytes | bytearray | memoryview):
         return bytes(data)
+    if isinstance(data, np.ndarray):  # rosbags decodes uint8[] as an array
+        return data.astype(np.uint8, copy=False).tobytes()
     return bytes(bytearray(data))  # ROS 2 uint8[] may decode as a list
 
 
+def _whole_number(value: Any) -> int:
+    """An integer field of a message; ValueError when it is not a finite whole number."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{value!r} is not a number")
+    if not math.isfinite(value) or value != int(value):
+        raise ValueError(f"{value!r} is not a whole number")
+    return int(value)
+
+
 def message_stamp_ns(schema_name: str, msg: Any) -> int | None:
-    """The header / timestamp of an image or camera message [ns], or None."""
+    """The header / timestamp of an image or camera message [ns], or None when it has none.
+
+    Raises:
+        ValueError: the stamp is there but is not made of whole numbers.
+    """
     if schema_name.startswith("foxglove."):
-        ts = _get(msg, "timestamp")
-        if ts is None:
-            return None
-        return int(_get(ts, "sec", 0)) * 1_000_000_000 + int(_get(ts, "nsec", 0))
-    header = _get(msg, "header")
-    stamp = _get(header, "stamp") if header is not None else None
+        stamp, nsec_key = _get(msg, "timestamp"), "nsec"
+    else:
+        header = _get(msg, "header")
+        stamp, nsec_key = (_get(header, "stamp") if header is not None else None), "nanosec"
     if stamp is None:
         return None
-    return int(_get(stamp, "sec", 0)) * 1_000_000_000 + int(_get(stamp, "nanosec", 0))
+    return _whole_number(_get(stamp, "sec", 0)) * 1_000_000_000 + _whole_number(
+        _get(stamp, nsec_key, 0)
+    )
+
+
+def message_frame_id(msg: Any) -> str | None:
+    """The frame id of an image or camera message (Foxglove or ROS 2 header), or None."""
+    frame_id = _get(msg, "frame_id")
+    if frame_id is None:
+        header = _get(msg, "header")
+        frame_id = _get(header, "frame_id") if header is not None else None
+    return frame_id if isinstance(frame_id, str) and frame_id else None
 
 
 _RAW_CHANNELS = {"mono8": 1, "8uc1": 1, "bgr8": 3, "rgb8": 3, "8uc3": 3, "bgra8": 4, "rgba8": 4}
@@ -124,7 +213,7 @@ def camera_from_message(schema_name: str, msg: Any, source: str) -> CameraModel:
         raise InputError(f"{source}: {schema_name} is not a camera message")
     try:
         K = np.array([float(v) for v in K], dtype=float).reshape(3, 3)
-        D = np.array([float(v) for v in (D or [])], dtype=float)
+        D = np.array([float(v) for v in ([] if D is None else D)], dtype=float)
         w, h = int(_get(msg, "width")), int(_get(msg, "height"))
     except (TypeError, ValueError):
         raise InputError(f"{source}: camera calibration message is malformed") from None

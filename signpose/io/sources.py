@@ -15,8 +15,8 @@ import queue
 import re
 import threading
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -26,7 +26,16 @@ from signpose.core.errors import InputError
 from signpose.estimator.camera import CameraModel, check_image_size
 from signpose.io.frames_csv import read_frames_csv
 from signpose.io.mcap_read import McapLog
-from signpose.io.messages import camera_from_message, image_from_message, message_stamp_ns
+from signpose.io.messages import (
+    LogChannel,
+    LogMessage,
+    MessageLog,
+    camera_from_message,
+    image_from_message,
+    message_frame_id,
+    message_stamp_ns,
+)
+from signpose.io.rosbag import METADATA_NAME, is_bag_file, is_bag_folder, open_bag
 
 log = logging.getLogger(__name__)
 
@@ -82,8 +91,32 @@ class FrameSource:
         self.length: int | None = None
         self.camera: CameraModel | None = None
         self.problems: list[str] = []
+        self._notes: list[str] = []  # problems found on opening, repeated in every pass
 
     def __iter__(self) -> Iterator[Frame]:
+        """The frames in order; frames of another size than the first are skipped and counted."""
+        self.problems = list(self._notes)
+        size: tuple[int, int] | None = None
+        odd: list[Frame] = []
+        index = 0
+        for frame in self._read():
+            if size is None:
+                size = frame.image_size
+            elif frame.image_size != size:
+                odd.append(frame)
+                continue
+            yield frame if frame.index == index else replace(frame, index=index)
+            index += 1
+        if odd:
+            first = odd[0]
+            self._problem(
+                f"{len(odd)} frame(s) of another size than the first frame's {size[0]}x{size[1]} "
+                f"skipped (first: frame {first.index}, "
+                f"{first.image_size[0]}x{first.image_size[1]})"
+            )
+
+    def _read(self) -> Iterator[Frame]:
+        """The frames as the input holds them (indices from 0 in reading order)."""
         raise NotImplementedError
 
     def describe(self) -> str:
@@ -94,6 +127,11 @@ class FrameSource:
         line = f"{self.path}: {text}"
         self.problems.append(line)
         log.info("%s", line)  # the caller reports problems to the user
+
+    def _note(self, text: str) -> None:
+        """A problem found on opening: reported with every pass over the frames."""
+        self._notes.append(f"{self.path}: {text}")
+        self._problem(text)
 
 
 # --------------------------------------------------------------------------- video
@@ -116,8 +154,7 @@ class VideoSource(FrameSource):
             cap.release()
         self.length = n if n > 0 else None
 
-    def __iter__(self) -> Iterator[Frame]:
-        self.problems = []
+    def _read(self) -> Iterator[Frame]:
         cap = cv2.VideoCapture(str(self.path))
         try:
             index = 0
@@ -200,8 +237,7 @@ class FolderSource(FrameSource):
             )
         self.length = len(self.items)
 
-    def __iter__(self) -> Iterator[Frame]:
-        self.problems = []
+    def _read(self) -> Iterator[Frame]:
         index = 0
         for p, stamp_ns in self.items:
             image = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
@@ -231,74 +267,66 @@ def _read_times_csv(csv_path: Path, files: dict[str, Path]) -> list[tuple[Path, 
     return items
 
 
-# --------------------------------------------------------------------------- MCAP
+# --------------------------------------------------------------------------- logs
 
 
-class McapSource(FrameSource):
-    """Images of one topic of an MCAP log; the camera from a calibration channel if any."""
+class LogSource(FrameSource):
+    """Images of one topic of a recorded log; the camera from a calibration topic if any.
 
-    kind = "mcap"
+    Frame times are the messages' header stamps; the log time only where a
+    header stamp is zero or absent. Attributes beyond ``FrameSource``: ``topic``,
+    ``schema_name``, and ``frame_id`` (the images' frame id, once read, or None).
+    """
 
-    def __init__(self, path: Path, topic: str | None = None):
+    kind = "log"
+
+    def __init__(self, path: Path, log: MessageLog, topic: str | None = None):
         super().__init__(path)
-        self.log = McapLog(path)
-        images = self.log.image_channels()
-        listed = ", ".join(c.describe() for c in self.log.channels) or "none"
-        if topic is not None:
-            ch = self.log.channel(topic)
-            if ch is None:
-                available = ", ".join(c.topic for c in images) or "none"
-                raise InputError(
-                    f"{path}: no topic '{topic}'; image topics in the log: {available}"
-                )
-            if not ch.is_image:
-                raise InputError(
-                    f"{path}: topic '{topic}' holds {ch.schema_name or 'unknown messages'}, "
-                    f"not images; image topics: {', '.join(c.topic for c in images) or 'none'}"
-                )
-        elif not images:
-            raise InputError(
-                f"{path}: no image topic (foxglove.CompressedImage/RawImage, "
-                f"sensor_msgs/msg/CompressedImage/Image); topics in the log: {listed}"
-            )
-        elif len(images) > 1:
-            raise InputError(
-                f"{path}: several image topics ({', '.join(c.topic for c in images)}); "
-                "choose one with --topic"
-            )
-        else:
-            ch = images[0]
+        self.log = log
+        ch = _image_channel(path, log.channels, topic)
         self.topic = ch.topic
         self.schema_name = ch.schema_name
         self.length = ch.message_count
+        self.frame_id: str | None = None
         if ch.message_count == 0:
             raise InputError(f"{path}: topic {ch.topic} has no messages")
-        self.camera = self._find_camera()
-        if self.log.problem:
-            self._problem(self.log.problem)
+        self.camera = self._find_camera()  # a damaged log is reported by the frames' pass
 
     def _find_camera(self) -> CameraModel | None:
         cams = [c for c in self.log.channels if c.is_camera]
         if not cams:
             return None
         for msg in self.log.messages([cams[0].topic]):
+            if msg.error:
+                raise InputError(f"{self.path}: {cams[0].topic}: camera message {msg.error}")
             return camera_from_message(msg.schema_name, msg.decoded, str(self.path))
         return None
 
-    def __iter__(self) -> Iterator[Frame]:
-        self.problems = []
+    def _frame_of(self, msg: LogMessage) -> tuple[np.ndarray | None, int, str]:
+        """(image, stamp_ns, "") of one message, or (None, 0, why it is skipped)."""
+        if msg.error:
+            return None, 0, msg.error
+        image, reason = image_from_message(msg.schema_name, msg.decoded)
+        if image is None:
+            return None, 0, reason
+        try:
+            stamp_ns = message_stamp_ns(msg.schema_name, msg.decoded)
+        except ValueError as exc:
+            return None, 0, f"bad header stamp ({exc})"
+        if stamp_ns is None or stamp_ns == 0:
+            stamp_ns = msg.log_time_ns
+        if self.frame_id is None:
+            self.frame_id = message_frame_id(msg.decoded)
+        return image, stamp_ns, ""
+
+    def _read(self) -> Iterator[Frame]:
         index = 0
         last_ns = -1
-        for msg in self.log.messages([self.topic]):
-            image, reason = image_from_message(msg.schema_name, msg.decoded)
+        for number, msg in enumerate(self.log.messages([self.topic])):
+            image, stamp_ns, reason = self._frame_of(msg)
             if image is None:
-                self._problem(
-                    f"{self.topic}: message {index + len(self.problems)}: {reason}; skipped"
-                )
+                self._problem(f"{self.topic}: message {number}: {reason}; skipped")
                 continue
-            stamp_ns = message_stamp_ns(msg.schema_name, msg.decoded)
-            if stamp_ns is None or stamp_ns == 0:
-                stamp_ns = msg.log_time_ns
             stamp_ns = max(stamp_ns, last_ns + 1)
             last_ns = stamp_ns
             yield Frame(index, stamp_ns, image)
@@ -309,17 +337,68 @@ class McapSource(FrameSource):
             raise InputError(f"{self.path}: no readable image on {self.topic}")
 
 
+def _image_channel(path: Path, channels: Iterable[LogChannel], topic: str | None) -> LogChannel:
+    """The image topic to read: ``topic``, or the log's only image topic."""
+    channels = tuple(channels)
+    images = [c for c in channels if c.is_image]
+    names = ", ".join(c.topic for c in images) or "none"
+    if topic is not None:
+        ch = next((c for c in channels if c.topic == topic), None)
+        if ch is None:
+            raise InputError(f"{path}: no topic '{topic}'; image topics in the log: {names}")
+        if not ch.is_image:
+            raise InputError(
+                f"{path}: topic '{topic}' holds {ch.schema_name or 'unknown messages'}, "
+                f"not images; image topics: {names}"
+            )
+        return ch
+    if not images:
+        listed = ", ".join(c.describe() for c in channels) or "none"
+        raise InputError(
+            f"{path}: no image topic (foxglove.CompressedImage/RawImage, "
+            f"sensor_msgs/msg/CompressedImage/Image); topics in the log: {listed}"
+        )
+    if len(images) > 1:
+        raise InputError(f"{path}: several image topics ({names}); choose one with --topic")
+    return images[0]
+
+
+class McapSource(LogSource):
+    """Images of one topic of an MCAP file (Foxglove JSON or ROS 2 CDR messages)."""
+
+    kind = "mcap"
+
+    def __init__(self, path: Path, topic: str | None = None):
+        super().__init__(path, McapLog(path), topic)
+
+
+class BagSource(LogSource):
+    """Images of one topic of a rosbag2 bag: its folder, or one of its storage files."""
+
+    kind = "rosbag2"
+
+    def __init__(self, path: Path, topic: str | None = None):
+        log = open_bag(path)
+        super().__init__(path, log, topic)
+        if log.info.note:
+            self._note(log.info.note)
+
+
 # --------------------------------------------------------------------------- entry point
 
 
 def open_source(
     path: str | Path, *, topic: str | None = None, fps: float | None = None
 ) -> FrameSource:
-    """Open a video file, a folder of images or an MCAP log by what ``path`` is.
+    """Open a video file, a folder of images, an MCAP log or a rosbag2 bag by what ``path`` is.
+
+    A bag is a folder with ``metadata.yaml`` (or with only .mcap/.db3 files), a
+    ``.db3``, a ``.mcap.zstd``/``.db3.zstd``, or a ``.mcap`` its folder's
+    ``metadata.yaml`` lists (so the bag's compression applies).
 
     Args:
         path: the input.
-        topic: MCAP image topic (needed when the log has several).
+        topic: image topic of a log or bag (needed when it has several).
         fps: frame rate for a folder without a times CSV (overrides the CSV).
 
     Raises:
@@ -329,15 +408,23 @@ def open_source(
     if not p.exists():
         raise InputError(f"{p}: input not found")
     if p.is_dir():
+        if (p / METADATA_NAME).is_file() or (not _has_images(p) and is_bag_folder(p)):
+            return BagSource(p, topic=topic)
         return FolderSource(p, fps=fps)
     if p.stat().st_size == 0:
         raise InputError(f"{p}: input file is empty")
+    if is_bag_file(p):
+        return BagSource(p, topic=topic)
     suffix = p.suffix.lower()
     if suffix in MCAP_SUFFIXES or _has_mcap_magic(p):
         return McapSource(p, topic=topic)
     if suffix in IMAGE_SUFFIXES:
         raise InputError(f"{p}: a single image; pass the folder that holds the frames")
     return VideoSource(p)
+
+
+def _has_images(folder: Path) -> bool:
+    return any(p.suffix.lower() in IMAGE_SUFFIXES for p in folder.iterdir() if p.is_file())
 
 
 def _has_mcap_magic(p: Path) -> bool:

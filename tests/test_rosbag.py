@@ -1,0 +1,342 @@
+"""rosbag2 bags in: folders and files, MCAP and sqlite3 storage, every compression mode.
+
+The bags are written here with the ``rosbags`` writer (what rosbags-based
+recorders produce; the layout is ``ros2 bag record``'s), never downloaded.
+Images are PNG, so a bag's frames are compared byte for byte with the same
+PNGs read as a folder.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sqlite3
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from signpose.core.errors import InputError
+from signpose.io.frames_csv import FrameStamp, write_frames_csv
+from signpose.io.rosbag import read_bag_info
+from signpose.io.sources import BagSource, FolderSource, open_source
+
+STORE = get_typestore(Stores.ROS2_HUMBLE)
+IMAGE_TOPIC = "/camera/image_raw/compressed"
+RAW_TOPIC = "/camera/image_raw"
+INFO_TOPIC = "/camera/camera_info"
+FRAME_ID = "camera_optical_frame"
+EPOCH_S = 1_700_000_000  # bags are stamped in epoch time
+PERIOD_NS = 50_000_000
+LARGE = (240, 320, 3)  # ~230 kB of PNG: 20 frames fill several 1 MiB MCAP chunks
+STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+COMPRESSIONS = {"none": None, "file": CompressionMode.FILE, "message": CompressionMode.MESSAGE}
+
+
+def _msg(name: str):
+    return STORE.types[name]
+
+
+def _header(stamp_ns: int):
+    Header, Time = _msg("std_msgs/msg/Header"), _msg("builtin_interfaces/msg/Time")
+    return Header(stamp=Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id=FRAME_ID)
+
+
+def _camera_info(stamp_ns: int):
+    roi = _msg("sensor_msgs/msg/RegionOfInterest")(
+        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+    )
+    return _msg("sensor_msgs/msg/CameraInfo")(
+        header=_header(stamp_ns),
+        height=48,
+        width=64,
+        distortion_model="plumb_bob",
+        d=np.array([0.01, -0.002, 0.0, 0.0, 0.0]),
+        k=np.array([60.0, 0.0, 31.5, 0.0, 61.0, 23.5, 0.0, 0.0, 1.0]),
+        r=np.eye(3).reshape(-1),
+        p=np.array([60.0, 0.0, 31.5, 0.0, 0.0, 61.0, 23.5, 0.0, 0.0, 0.0, 1.0, 0.0]),
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+    )
+
+
+def _images(n: int, seed: int = 0, shape: tuple[int, ...] = (48, 64, 3)) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [rng.integers(0, 255, shape, dtype=np.uint8) for _ in range(n)]
+
+
+def _stamps(n: int) -> list[int]:
+    return [EPOCH_S * 10**9 + i * PERIOD_NS for i in range(n)]
+
+
+def write_bag(
+    path: Path,
+    images: list[np.ndarray],
+    *,
+    storage: str = "mcap",
+    compression: str = "none",
+    camera_info: bool = True,
+    raw: bool = False,
+) -> Path:
+    """A bag with PNG CompressedImage (or raw bgr8 Image) frames and one CameraInfo."""
+    writer = Writer(path, version=8, storage_plugin=STORAGES[storage])
+    if COMPRESSIONS[compression] is not None:
+        writer.set_compression(COMPRESSIONS[compression], CompressionFormat.ZSTD)
+    kind = "sensor_msgs/msg/Image" if raw else "sensor_msgs/msg/CompressedImage"
+    with writer:
+        images_conn = writer.add_connection(
+            RAW_TOPIC if raw else IMAGE_TOPIC, kind, typestore=STORE
+        )
+        info_conn = None
+        if camera_info:
+            info_conn = writer.add_connection(
+                INFO_TOPIC, "sensor_msgs/msg/CameraInfo", typestore=STORE
+            )
+        for i, (stamp_ns, image) in enumerate(zip(_stamps(len(images)), images, strict=True)):
+            log_ns = stamp_ns + 7_000_000  # received a little after capture
+            if info_conn is not None and i == 0:
+                data = STORE.serialize_cdr(_camera_info(stamp_ns), "sensor_msgs/msg/CameraInfo")
+                writer.write(info_conn, log_ns, data)
+            if raw:
+                msg = _msg(kind)(
+                    header=_header(stamp_ns),
+                    height=image.shape[0],
+                    width=image.shape[1],
+                    encoding="bgr8",
+                    is_bigendian=0,
+                    step=image.shape[1] * 3,
+                    data=image.reshape(-1),
+                )
+            else:
+                ok, png = cv2.imencode(".png", image)
+                assert ok
+                msg = _msg(kind)(header=_header(stamp_ns), format="png", data=png.reshape(-1))
+            writer.write(images_conn, log_ns, STORE.serialize_cdr(msg, kind))
+    return path
+
+
+def _folder_frames(tmp_path: Path, images: list[np.ndarray]):
+    folder = tmp_path / "pngs"
+    folder.mkdir()
+    rows = []
+    for i, (stamp_ns, image) in enumerate(zip(_stamps(len(images)), images, strict=True)):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), image)
+        rows.append(FrameStamp(f"{i:04d}.png", stamp_ns))
+    write_frames_csv(folder / "frames.csv", rows)
+    return list(FolderSource(folder))
+
+
+@pytest.mark.parametrize("compression", sorted(COMPRESSIONS))
+@pytest.mark.parametrize("storage", sorted(STORAGES))
+def test_bag_folder_reads_like_the_same_pngs(tmp_path, storage, compression):
+    images = _images(6)
+    bag = write_bag(tmp_path / "bag", images, storage=storage, compression=compression)
+    source = open_source(bag)
+    assert isinstance(source, BagSource)
+    assert (source.topic, source.length) == (IMAGE_TOPIC, 6)
+    frames = list(source)
+    expected = _folder_frames(tmp_path, images)
+    assert [f.stamp_ns for f in frames] == [f.stamp_ns for f in expected]  # header stamps
+    for got, want in zip(frames, expected, strict=True):
+        np.testing.assert_array_equal(got.image, want.image)
+    assert source.problems == []
+    assert source.frame_id == FRAME_ID
+    cam = source.camera
+    assert cam is not None and (cam.width, cam.height) == (64, 48)
+    np.testing.assert_array_equal(cam.K, [[60.0, 0.0, 31.5], [0.0, 61.0, 23.5], [0.0, 0.0, 1.0]])
+
+
+@pytest.mark.parametrize("storage", sorted(STORAGES))
+def test_a_storage_file_of_a_bag_reads_with_the_bags_compression(tmp_path, storage):
+    images = _images(3, seed=1)
+    bag = write_bag(tmp_path / "bag", images, storage=storage, compression="message")
+    (file,) = [p for p in bag.iterdir() if p.name != "metadata.yaml"]
+    frames = list(open_source(file))
+    np.testing.assert_array_equal(frames[2].image, images[2])
+
+
+def test_raw_images_in_a_db3(tmp_path):
+    images = _images(3, seed=2)
+    bag = write_bag(tmp_path / "bag", images, storage="sqlite3", raw=True, camera_info=False)
+    (db3,) = bag.glob("*.db3")
+    os.remove(bag / "metadata.yaml")  # a lone .db3, as copied off a robot
+    source = open_source(db3)
+    assert source.topic == RAW_TOPIC and source.camera is None
+    frames = list(source)
+    for got, want in zip(frames, images, strict=True):
+        np.testing.assert_array_equal(got.image, want)
+
+
+def test_header_stamp_zero_falls_back_to_the_log_time(tmp_path):
+    bag = tmp_path / "bag"
+    writer = Writer(bag, version=8, storage_plugin=StoragePlugin.SQLITE3)
+    kind = "sensor_msgs/msg/CompressedImage"
+    ok, png = cv2.imencode(".png", _images(1)[0])
+    with writer:
+        conn = writer.add_connection(IMAGE_TOPIC, kind, typestore=STORE)
+        for i in range(2):
+            msg = _msg(kind)(header=_header(0), format="png", data=png.reshape(-1))
+            writer.write(conn, 5_000 + i, STORE.serialize_cdr(msg, kind))
+    assert [f.stamp_ns for f in open_source(bag)] == [5_000, 5_001]
+
+
+def test_a_recording_killed_before_metadata_was_written(tmp_path):
+    bag = write_bag(tmp_path / "bag", _images(4), storage="sqlite3")
+    os.remove(bag / "metadata.yaml")
+    source = open_source(bag)
+    assert isinstance(source, BagSource)
+    assert len(list(source)) == 4
+    assert len(source.problems) == 1 and "no metadata.yaml" in source.problems[0]
+
+
+def test_truncated_db3_reads_up_to_the_break(tmp_path):
+    images = _images(40, seed=3)
+    bag = write_bag(tmp_path / "bag", images, storage="sqlite3", camera_info=False)
+    (db3,) = bag.glob("*.db3")
+    before = db3.read_bytes()
+    with open(db3, "r+b") as f:
+        f.truncate(int(len(before) * 0.6))
+    cut = db3.read_bytes()
+    frames = list(source := open_source(bag))
+    assert 10 < len(frames) < 40
+    for got, want in zip(frames, images, strict=False):
+        np.testing.assert_array_equal(got.image, want)
+    assert len(source.problems) == 1
+    assert f"bag.db3: log stopped after {len(frames)} messages" in source.problems[0]
+    assert db3.read_bytes() == cut  # read through a repaired copy, never written
+
+
+def test_truncated_mcap_in_a_bag_reads_up_to_the_break(tmp_path):
+    images = _images(20, seed=4, shape=LARGE)  # several MCAP chunks
+    bag = write_bag(tmp_path / "bag", images, storage="mcap", camera_info=False)
+    (mcap,) = bag.glob("*.mcap")
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: int(len(data) * 0.7)])
+    frames = list(source := open_source(bag))
+    assert 5 < len(frames) < 20
+    assert len(source.problems) == 1 and "truncated or corrupt" in source.problems[0]
+
+
+def test_truncated_zstd_file_reads_what_decompresses(tmp_path):
+    images = _images(20, seed=5, shape=LARGE)
+    bag = write_bag(tmp_path / "bag", images, storage="mcap", compression="file")
+    (packed,) = bag.glob("*.zstd")
+    data = packed.read_bytes()
+    packed.write_bytes(data[: int(len(data) * 0.7)])
+    frames = list(source := open_source(bag))
+    assert 0 < len(frames) < 20
+    assert any("compressed file ends inside a frame" in p for p in source.problems)
+
+
+def _metadata(bag: Path) -> dict:
+    return yaml.safe_load((bag / "metadata.yaml").read_text())
+
+
+@pytest.mark.parametrize(
+    "damage, expect",
+    [
+        (lambda d: "rosbag2_bagfile_information: [\n", "not readable YAML"),
+        (lambda d: yaml.safe_dump({"other": 1}), "no 'rosbag2_bagfile_information'"),
+        (
+            lambda d: yaml.safe_dump(
+                {"rosbag2_bagfile_information": {**d, "storage_identifier": "hdf5"}}
+            ),
+            "storage 'hdf5' is not supported",
+        ),
+        (
+            lambda d: yaml.safe_dump(
+                {"rosbag2_bagfile_information": {**d, "relative_file_paths": ["gone.db3"]}}
+            ),
+            "not in the folder: gone.db3",
+        ),
+        (
+            lambda d: yaml.safe_dump(
+                {"rosbag2_bagfile_information": {**d, "compression_format": "lz4"}}
+            ),
+            "compression format 'lz4' is not supported",
+        ),
+        (lambda d: "\udcff", "not readable YAML"),
+    ],
+)
+def test_corrupt_metadata_is_one_line_naming_the_file(tmp_path, damage, expect):
+    bag = write_bag(tmp_path / "bag", _images(2), storage="sqlite3", compression="message")
+    info = _metadata(bag)["rosbag2_bagfile_information"]
+    text = damage(info)
+    (bag / "metadata.yaml").write_bytes(text.encode("utf-8", "surrogateescape"))
+    with pytest.raises(InputError) as err:
+        open_source(bag)
+    message = str(err.value)
+    assert message.startswith(str(bag / "metadata.yaml")) and expect in message
+    assert "\n" not in message
+
+
+def test_bag_without_an_image_topic_lists_its_topics(tmp_path):
+    bag = tmp_path / "bag"
+    with Writer(bag, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection(INFO_TOPIC, "sensor_msgs/msg/CameraInfo", typestore=STORE)
+        writer.write(conn, 1, STORE.serialize_cdr(_camera_info(1), "sensor_msgs/msg/CameraInfo"))
+    with pytest.raises(InputError, match="no image topic.*/camera/camera_info"):
+        open_source(bag)
+
+
+def test_wrong_topic_in_a_bag_lists_the_image_topics(tmp_path):
+    bag = write_bag(tmp_path / "bag", _images(2), storage="sqlite3")
+    with pytest.raises(InputError, match=f"no topic '/nope'.*{IMAGE_TOPIC}"):
+        open_source(bag, topic="/nope")
+    with pytest.raises(InputError, match="holds sensor_msgs/msg/CameraInfo, not images"):
+        open_source(bag, topic=INFO_TOPIC)
+
+
+def test_a_db3_that_is_not_sqlite(tmp_path):
+    path = tmp_path / "flight.db3"
+    path.write_bytes(b"\x00" * 4096)
+    with pytest.raises(InputError, match="flight.db3: not an SQLite database"):
+        open_source(path)
+
+
+def test_a_db3_without_bag_tables(tmp_path):
+    path = tmp_path / "other.db3"
+    with sqlite3.connect(path) as con:
+        con.execute("CREATE TABLE t (x INTEGER)")
+    with pytest.raises(InputError, match="other.db3: not a readable rosbag2 sqlite3 file"):
+        open_source(path)
+
+
+def test_a_corrupt_message_is_skipped_and_reported(tmp_path):
+    images = _images(3, seed=6)
+    bag = write_bag(tmp_path / "bag", images, storage="sqlite3", camera_info=False)
+    (db3,) = bag.glob("*.db3")
+    with sqlite3.connect(db3) as con:
+        con.execute("UPDATE messages SET data = x'0001' WHERE id = 2")
+    frames = list(source := open_source(bag))
+    assert len(frames) == 2
+    np.testing.assert_array_equal(frames[1].image, images[2])
+    assert len(source.problems) == 1 and "message 1: cannot decode" in source.problems[0]
+
+
+def test_split_bag_reads_every_file_in_order(tmp_path):
+    images = _images(6, seed=7)
+    first = write_bag(tmp_path / "a", images[:3], storage="sqlite3", camera_info=False)
+    second = write_bag(tmp_path / "b", images[3:], storage="sqlite3", camera_info=False)
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    shutil.move(next(first.glob("*.db3")), bag / "bag_0.db3")
+    db3 = next(second.glob("*.db3"))
+    with sqlite3.connect(db3) as con:  # the second file continues the clock
+        con.execute(f"UPDATE messages SET timestamp = timestamp + {3 * PERIOD_NS}")
+    shutil.move(db3, bag / "bag_1.db3")
+    meta = _metadata(first)
+    info = meta["rosbag2_bagfile_information"]
+    info["relative_file_paths"] = ["bag_0.db3", "bag_1.db3"]
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    assert [p.name for p in read_bag_info(bag).files] == ["bag_0.db3", "bag_1.db3"]
+    source = open_source(bag)
+    assert source.length == 6
+    frames = list(source)
+    for got, want in zip(frames, images, strict=True):
+        np.testing.assert_array_equal(got.image, want)
