@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Frontend timing per 1080p frame on one core: detector modes, tracking, ArUco.
 
-Simulates a short held-out flight (``signpose.simulate``), then times on the
+Simulates a short held-out flight (``signpose.sim.flight``), then times on the
 same frames, with ``cv2.setNumThreads(1)``:
 
 * ``fast``: full-frame cold detection, fast mode (cascade + merge + decoder);

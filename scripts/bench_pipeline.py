@@ -15,10 +15,21 @@ import argparse
 import json
 import os
 import platform
+import resource
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from signpose.estimator.estimate import EstimatorSettings
+from signpose.estimator.smoother import SmootherSettings
+from signpose.maps.loader import bundled_map_path, load_map
+
+from signpose.core.errors import InputError
+from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.io.results import read_report
+from signpose.pipeline import ObserveSettings, RunResult, RunSettings, run
+from signpose.sim.flight import SimSettings, simulate, simulated_camera
 
 STAGES = (
     ("decode_video", "decode video (reader thread)"),
@@ -33,11 +44,6 @@ STAGES = (
 
 def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
     """The simulated flight in ``work/flight`` (simulated once per size)."""
-    from signpose.maps.loader import bundled_map_path, load_map
-
-    from signpose.core.fileio import atomic_write
-    from signpose.sim.flight import SimSettings, simulate, simulated_camera
-
     stamp = work / "flight" / "bench.json"
     settings = SimSettings(frames=frames, width=width, height=height)
     key = {"frames": frames, "width": width, "height": height}
@@ -54,24 +60,19 @@ def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
 
 def _cpu_s() -> float:
     """User + system CPU time of this process and its threads [s]."""
-    import resource
-
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
 
 
 def result_estimator_timing(run_dir: Path) -> dict:
     """The estimator's own split (baseline, pnp, smoothed, sigmas) from report.json."""
-    from signpose.core.errors import InputError
-    from signpose.io.results import read_report
-
     try:
         return read_report(run_dir / "report.json").get("timing_s", {})
     except InputError:
         return {}
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--frames", type=int, default=1000, help="frames (default 1000)")
     p.add_argument("--width", type=int, default=1920)
@@ -87,35 +88,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-tracking", action="store_true", help="full-frame detection every frame")
     p.add_argument("--no-sigmas", action="store_true", help="skip the smoother's marginal sigmas")
     p.add_argument("--quiet", action="store_true")
-    args = p.parse_args(argv)
+    return p.parse_args(argv)
 
-    from signpose.estimator.estimate import EstimatorSettings
-    from signpose.estimator.smoother import SmootherSettings
-    from signpose.maps.loader import bundled_map_path, load_map
 
-    from signpose.core.fileio import atomic_write, ensure_dir
-    from signpose.pipeline import ObserveSettings, RunSettings, run
-
-    ensure_dir(args.work)
-    video, gt, camera, sim_s = _flight(args.work, args.frames, args.width, args.height, args.quiet)
-    settings = RunSettings(
-        observe=ObserveSettings(tracking=not args.no_tracking),
-        estimator=EstimatorSettings(smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)),
-        plots=not args.no_plots,
-    )
-    cpu0 = _cpu_s()
-    t0 = time.perf_counter()
-    result = run(
-        video,
-        load_map(bundled_map_path()),
-        args.work / "run",
-        camera=camera,
-        gt_path=gt,
-        settings=settings,
-        progress=not args.quiet,
-    )
-    wall = time.perf_counter() - t0
-    cpu = _cpu_s() - cpu0
+def _print_timing(args: argparse.Namespace, result: RunResult, wall: float, cpu: float) -> None:
+    """frames/s, CPU time and the per-stage split, as a table on stdout."""
     n = result.n_frames
     t = result.timing_s
     print(
@@ -137,33 +114,64 @@ def main(argv: list[str] | None = None) -> int:
     print(
         "position RMSE: " + ", ".join(f"{k} {v:.3f} m" for k, v in result.position_rmse_m.items())
     )
+
+
+def _json_data(
+    args: argparse.Namespace, result: RunResult, wall: float, cpu: float, est: dict
+) -> dict:
+    """What ``--json`` writes (reproduce_paper.py's Table 5 reads it)."""
+    n = result.n_frames
+    t = result.timing_s
+    return {
+        "frames": n,
+        "size": [args.width, args.height],
+        "wall_s": round(wall, 3),
+        "cpu_s": round(cpu, 3),
+        "frames_per_second": round(n / wall, 3),
+        "stages_s": {k: round(t.get(k, 0.0), 4) for k, _ in STAGES},
+        "stages_ms_per_frame": {k: round(1000 * t.get(k, 0.0) / max(n, 1), 3) for k, _ in STAGES},
+        "coverage": result.coverage,
+        "position_rmse_m": result.position_rmse_m,
+        "tracking": not args.no_tracking,
+        "sigmas": not args.no_sigmas,
+        "estimator_timing_s": est,
+        "plots": not args.no_plots,
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    ensure_dir(args.work)
+    video, gt, camera, sim_s = _flight(args.work, args.frames, args.width, args.height, args.quiet)
+    settings = RunSettings(
+        observe=ObserveSettings(tracking=not args.no_tracking),
+        estimator=EstimatorSettings(smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)),
+        plots=not args.no_plots,
+    )
+    cpu0 = _cpu_s()
+    t0 = time.perf_counter()
+    result = run(
+        video,
+        load_map(bundled_map_path()),
+        args.work / "run",
+        camera=camera,
+        gt_path=gt,
+        settings=settings,
+        progress=not args.quiet,
+    )
+    wall = time.perf_counter() - t0
+    cpu = _cpu_s() - cpu0
+    _print_timing(args, result, wall, cpu)
     est = result_estimator_timing(args.work / "run")
     if est:
         print("estimator split [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in est.items()))
     if sim_s:
         print(f"(simulation, not timed above: {sim_s:.1f} s)")
     if args.json:
-        data = {
-            "frames": n,
-            "size": [args.width, args.height],
-            "wall_s": round(wall, 3),
-            "cpu_s": round(cpu, 3),
-            "frames_per_second": round(n / wall, 3),
-            "stages_s": {k: round(t.get(k, 0.0), 4) for k, _ in STAGES},
-            "stages_ms_per_frame": {
-                k: round(1000 * t.get(k, 0.0) / max(n, 1), 3) for k, _ in STAGES
-            },
-            "coverage": result.coverage,
-            "position_rmse_m": result.position_rmse_m,
-            "tracking": not args.no_tracking,
-            "sigmas": not args.no_sigmas,
-            "estimator_timing_s": result_estimator_timing(args.work / "run"),
-            "plots": not args.no_plots,
-            "cpu_count": os.cpu_count(),
-            "python": platform.python_version(),
-        }
         with atomic_write(args.json) as f:
-            f.write(json.dumps(data, indent=2) + "\n")
+            f.write(json.dumps(_json_data(args, result, wall, cpu, est), indent=2) + "\n")
     return 0
 
 
