@@ -42,6 +42,17 @@ RANDOM_WALK = "random-walk"
 CONSTANT_VELOCITY = "constant-velocity"
 MOTION_MODELS = (RANDOM_WALK, CONSTANT_VELOCITY)
 
+# Kernels on the projection factors: Huber bounds an outlier's pull; Tukey
+# (redescending) and graduated non-convexity with truncated least squares
+# (gtsam.GncLMOptimizer) remove it. scripts/eval_estimator.py compares them.
+HUBER = "huber"
+TUKEY = "tukey"
+GNC = "gnc"
+KERNELS = (HUBER, TUKEY, GNC)
+# chi-square with 2 degrees of freedom at 1 - 1e-3: a keypoint whose whitened
+# squared residual exceeds this is an outlier at the 0.1 % level.
+CHI2_2DOF_999 = 13.816
+
 
 def X(i: int) -> int:
     return gtsam.symbol("x", i)
@@ -65,6 +76,13 @@ class SmootherSettings:
     Attributes:
         huber_k: Huber threshold on the whitened 2-D residual norm; 2.45 keeps
             95 % of Gaussian inliers at full weight (chi with 2 dof).
+        kernel: ``"huber"``, ``"tukey"`` (redescending: zero weight beyond
+            ``tukey_k``) or ``"gnc"`` (graduated non-convexity, truncated least
+            squares at ``gnc_chi2``, batch only).
+        tukey_k: Tukey threshold on the whitened residual norm (4.685: 95 %
+            efficiency on Gaussian data).
+        gnc_chi2: a keypoint whose whitened squared residual exceeds this is an
+            outlier for GNC (default: chi-square, 2 dof, 0.1 %).
         motion: ``"random-walk"`` or ``"constant-velocity"`` (the default: it
             had the lower error on simulated flights, see scripts/eval_estimator.py).
         rw_sigma_rot: random-walk rotation density [rad/sqrt(s)].
@@ -105,6 +123,9 @@ class SmootherSettings:
     """
 
     huber_k: float = 2.45
+    kernel: str = HUBER
+    tukey_k: float = 4.685
+    gnc_chi2: float = CHI2_2DOF_999
     motion: str = CONSTANT_VELOCITY
     rw_sigma_rot: float = 0.2
     rw_sigma_pos: float = 0.2
@@ -218,6 +239,10 @@ class SmootherResult:
         per_frame_cpu_ms: (N,) iSAM2 CPU time per frame [ms], or None.
         iterations: LM iterations (batch) or 0.
         final_error: graph error at the solution.
+        cov6: (N, 6, 6) marginal covariance of each pose, gtsam's order
+            [rotation, translation] in the camera frame, or None.
+        weights: (M,) GNC weight of each measurement (1 inlier, 0 outlier),
+            or None when GNC did not run.
     """
 
     world_T_cam: np.ndarray
@@ -233,6 +258,8 @@ class SmootherResult:
     per_frame_cpu_ms: np.ndarray | None = None
     iterations: int = 0
     final_error: float = float("nan")
+    cov6: np.ndarray | None = None
+    weights: np.ndarray | None = None
 
 
 def _calibration(camera: CameraModel) -> gtsam.Cal3_S2:
@@ -250,6 +277,8 @@ class _GraphBuilder:
     ):
         if s.motion not in MOTION_MODELS:
             raise ValueError(f"unknown motion model {s.motion!r}; use one of {MOTION_MODELS}")
+        if s.kernel not in KERNELS:
+            raise ValueError(f"unknown kernel {s.kernel!r}; use one of {KERNELS}")
         self.m = meas
         self.s = s
         self.stamps = np.asarray(stamps_s, dtype=float)
@@ -274,9 +303,16 @@ class _GraphBuilder:
         key = round(float(sigma), 6)
         if key not in self._noise:
             base = gtsam.noiseModel.Isotropic.Sigma(2, key)
-            self._noise[key] = gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Huber.Create(self.s.huber_k), base
-            )
+            if self.s.kernel == GNC:  # GNC weighs plain Gaussian factors itself
+                self._noise[key] = base
+            else:
+                est = gtsam.noiseModel.mEstimator
+                kernel = (
+                    est.Tukey.Create(self.s.tukey_k)
+                    if self.s.kernel == TUKEY
+                    else est.Huber.Create(self.s.huber_k)
+                )
+                self._noise[key] = gtsam.noiseModel.Robust.Create(kernel, base)
         return self._noise[key]
 
     def landmark_prior(self, j: int) -> gtsam.NonlinearFactor:
@@ -429,20 +465,16 @@ def _observed_and_signs(meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
     return observed, signs
 
 
-def smooth_batch(
-    meas: Measurements,
-    stamps_s: np.ndarray,
-    init_world_T_cam: list[np.ndarray | None],
-    camera: CameraModel,
-    settings: SmootherSettings,
-    default_world_T_cam: np.ndarray,
-) -> SmootherResult:
-    """Batch Levenberg-Marquardt over the whole flight."""
-    s = settings
-    t0 = time.perf_counter()
-    n = meas.n_frames
-    b = _GraphBuilder(meas, stamps_s, camera, s)
-    init = _fill_initial(init_world_T_cam, default_world_T_cam)
+@dataclass(frozen=True)
+class _BatchGraph:
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    projection_factor: np.ndarray  # (M,) factor index of each measurement (-1: none)
+
+
+def _batch_graph(b: _GraphBuilder, init: np.ndarray, stamps_s: np.ndarray) -> _BatchGraph:
+    """Every factor of the flight and the initial values."""
+    meas, s = b.m, b.s
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for j in range(len(meas.landmark_code)):
@@ -452,44 +484,104 @@ def smooth_batch(
     vel = _velocities(init, stamps_s) if s.motion == CONSTANT_VELOCITY else None
     if s.motion == CONSTANT_VELOCITY:
         values.insert(BIAS_KEY, gtsam.imuBias.ConstantBias())
-    for i in range(n):
+    factor = np.full(len(meas.frame), -1, np.int64)
+    for i in range(meas.n_frames):
         values.insert(X(i), gtsam.Pose3(init[i]))
         if vel is not None:
             values.insert(V(i), vel[i])
+        first = graph.size()
         b.projection_factors(i, graph)
+        factor[b.measurement_ids(i)] = np.arange(first, graph.size())
         if i > 0:
             b.motion_factor(i, graph)
+    return _BatchGraph(graph, values, factor)
+
+
+def _optimize(
+    g: _BatchGraph, params: gtsam.LevenbergMarquardtParams, s: SmootherSettings
+) -> tuple[gtsam.Values, int, np.ndarray | None]:
+    """(solution, LM iterations, (M,) GNC weights or None)."""
+    if s.kernel != GNC:
+        opt = gtsam.LevenbergMarquardtOptimizer(g.graph, g.values, params)
+        return opt.optimize(), int(opt.iterations()), None
+    gnc = gtsam.GncLMParams(params)
+    gnc.setLossType(gtsam.GncLossType.TLS)
+    projection = set(g.projection_factor.tolist())
+    gnc.setKnownInliers([k for k in range(g.graph.size()) if k not in projection])
+    opt = gtsam.GncLMOptimizer(g.graph, g.values, gnc)
+    # GNC compares the factor error 0.5 * chi2 with its threshold.
+    opt.setInlierCostThresholds(0.5 * s.gnc_chi2)
+    result = opt.optimize()
+    weights = np.asarray(opt.getWeights())[g.projection_factor]
+    return result, 0, weights
+
+
+def smooth_batch(
+    meas: Measurements,
+    stamps_s: np.ndarray,
+    init_world_T_cam: list[np.ndarray | None],
+    camera: CameraModel,
+    settings: SmootherSettings,
+    default_world_T_cam: np.ndarray,
+) -> SmootherResult:
+    """Batch Levenberg-Marquardt (or GNC on top of it) over the whole flight."""
+    s = settings
+    t0 = time.perf_counter()
+    n = meas.n_frames
+    b = _GraphBuilder(meas, stamps_s, camera, s)
+    g = _batch_graph(b, _fill_initial(init_world_T_cam, default_world_T_cam), stamps_s)
     t_build = time.perf_counter() - t0
     params = gtsam.LevenbergMarquardtParams()
     params.setOrdering(segmented_ordering(n, len(meas.landmark_code), s.motion, s.segment_frames))
     params.setMaxIterations(s.lm_max_iterations)
     params.setRelativeErrorTol(s.lm_rel_tol)
     params.setAbsoluteErrorTol(1e-9)
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    result = opt.optimize()
+    result, iterations, weights = _optimize(g, params, s)
     seconds = time.perf_counter() - t0
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
     lms = np.array([result.atPoint3(L(j)) for j in range(len(meas.landmark_code))]).reshape(-1, 3)
-    sigma = np.full((n, 3), np.nan)
+    cov6 = None
     sigma_seconds = 0.0
     if _want_sigmas(s, n):
         t1 = time.perf_counter()
+        graph = g.graph
+        if weights is not None:  # the marginals of the graph GNC converged to
+            graph = _without(graph, g.projection_factor[weights < 0.5])
         order = chain_ordering(n, len(meas.landmark_code), s.motion)
-        sigma = batch_sigmas(graph, result, poses, order)
+        cov6 = batch_covariances(graph, result, n, order)
         sigma_seconds = time.perf_counter() - t1
     observed, signs = _observed_and_signs(meas)
     return SmootherResult(
         world_T_cam=poses,
-        sigma_xyz=sigma,
+        sigma_xyz=_sigmas_from(cov6, poses),
         observed=observed,
         signs_used=signs,
         landmarks_world=lms,
         seconds=seconds,
         build_seconds=t_build,
         sigma_seconds=sigma_seconds,
-        iterations=int(opt.iterations()),
-        final_error=float(graph.error(result)),
+        iterations=iterations,
+        final_error=float(g.graph.error(result)),
+        cov6=cov6,
+        weights=weights,
     )
+
+
+def _without(graph: gtsam.NonlinearFactorGraph, drop: np.ndarray) -> gtsam.NonlinearFactorGraph:
+    """A copy of ``graph`` without the factors at indices ``drop``."""
+    skip = set(drop.tolist())
+    out = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        if k not in skip:
+            out.add(graph.at(k))
+    return out
+
+
+def _sigmas_from(cov6: np.ndarray | None, poses: np.ndarray) -> np.ndarray:
+    """(N, 3) world-axis position sigmas [m] from pose covariances (NaN without)."""
+    if cov6 is None:
+        return np.full((len(poses), 3), np.nan)
+    return np.array([_position_sigmas(c, T[:3, :3]) for c, T in zip(cov6, poses, strict=True)])
 
 
 def chain_ordering(n_frames: int, n_landmarks: int, motion: str) -> gtsam.Ordering:
@@ -560,31 +652,41 @@ def _want_sigmas(s: SmootherSettings, n: int) -> bool:
     return s.compute_sigmas
 
 
+def batch_covariances(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    n_frames: int,
+    ordering: gtsam.Ordering | None = None,
+) -> np.ndarray:
+    """(N, 6, 6) marginal covariance of every pose ([rotation, translation], camera frame).
+
+    Eliminates the graph linearised at the solution once, in ``ordering``
+    (the chain ordering: 11x faster than gtsam.Marginals' own COLAMD ordering
+    with constant velocity, identical to 1e-12), and asks the Bayes tree for
+    each pose's marginal, newest first so that shortcuts are reused. NaN when
+    the elimination fails (a warning is logged).
+    """
+    cov = np.full((n_frames, 6, 6), np.nan)
+    try:
+        linear = graph.linearize(values)
+        tree = (
+            linear.eliminateMultifrontal(ordering) if ordering else linear.eliminateMultifrontal()
+        )
+        for i in reversed(range(n_frames)):
+            cov[i] = tree.marginalCovariance(X(i))
+    except RuntimeError as exc:
+        log.warning("marginals failed: %s", exc)
+    return cov
+
+
 def batch_sigmas(
     graph: gtsam.NonlinearFactorGraph,
     values: gtsam.Values,
     poses: np.ndarray,
     ordering: gtsam.Ordering | None = None,
 ) -> np.ndarray:
-    """(N, 3) marginal position sigmas [m], world axes.
-
-    Eliminates the graph linearised at the solution once, in ``ordering``
-    (the chain ordering: 11x faster than gtsam.Marginals' own COLAMD ordering
-    with constant velocity, identical to 1e-12), and asks the Bayes tree for
-    each pose's marginal, newest first so that shortcuts are reused.
-    """
-    n = len(poses)
-    sigma = np.full((n, 3), np.nan)
-    try:
-        linear = graph.linearize(values)
-        tree = (
-            linear.eliminateMultifrontal(ordering) if ordering else linear.eliminateMultifrontal()
-        )
-        for i in reversed(range(n)):
-            sigma[i] = _position_sigmas(tree.marginalCovariance(X(i)), poses[i, :3, :3])
-    except RuntimeError as exc:
-        log.warning("marginals failed: %s", exc)
-    return sigma
+    """(N, 3) marginal position sigmas [m], world axes (see ``batch_covariances``)."""
+    return _sigmas_from(batch_covariances(graph, values, len(poses), ordering), poses)
 
 
 def _isam2_params(s: SmootherSettings) -> gtsam.ISAM2Params:
@@ -782,17 +884,16 @@ def smooth_isam2(
     result = isam.calculateBestEstimate()
     seconds = time.perf_counter() - t0
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
-    sigma = np.full((n, 3), np.nan)
+    cov6 = None
     sigma_seconds = 0.0
     if _want_sigmas(s, n):
         t1 = time.perf_counter()
-        for i in range(n):
-            sigma[i] = _position_sigmas(isam.marginalCovariance(X(i)), poses[i, :3, :3])
+        cov6 = np.array([isam.marginalCovariance(X(i)) for i in range(n)])
         sigma_seconds = time.perf_counter() - t1
     observed, signs = _observed_and_signs(meas)
     return SmootherResult(
         world_T_cam=poses,
-        sigma_xyz=sigma,
+        sigma_xyz=_sigmas_from(cov6, poses),
         observed=observed,
         signs_used=signs,
         landmarks_world=run.landmarks(result),
@@ -802,6 +903,7 @@ def smooth_isam2(
         per_frame_ms=per_ms,
         per_frame_cpu_ms=per_cpu_ms,
         final_error=float(isam.getFactorsUnsafe().error(result)),
+        cov6=cov6,
     )
 
 

@@ -116,6 +116,10 @@ def report_dict(result: EstimateResult) -> dict:
         }
     o = result.outliers.to_dict()
     o["n_downweighted"] = len(o["downweighted"])
+    o["n_rejected"] = {
+        test: sum(r["test"] == test for r in o["rejected"])
+        for test in sorted({r["test"] for r in o["rejected"]})
+    }
     o["downweighted"] = sorted(o["downweighted"], key=lambda d: -d["residual_px"])[
         :MAX_LISTED_OUTLIERS
     ]

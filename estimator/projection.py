@@ -1,0 +1,103 @@
+"""Pinhole projection of world points and its Jacobian with respect to the camera pose.
+
+Pixels are undistorted (``estimator.camera.undistort_px``), so the model is
+``uv = K pi(cam_R_world (world_p - world_t_cam))``. Pose perturbations follow
+gtsam's ``Pose3`` convention: ``world_T_cam * Exp(xi)`` with
+``xi = [omega, v]`` (rotation first, both in the camera frame), so a 6x6
+covariance from gtsam and the Jacobians here share one order.
+
+Also the chi-square quantile for even degrees of freedom (residuals come in
+pixel pairs), written out to avoid a scipy dependency.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from signpose.estimator.camera import CameraModel
+
+MIN_DEPTH_M = 1e-9  # depths are clamped to this to keep points at the camera finite
+
+
+def cam_points(world_T_cam: np.ndarray, world_p: np.ndarray) -> np.ndarray:
+    """(K, 3) points in the camera frame [m] from (K, 3) world points and one (4, 4) pose."""
+    return (world_p - world_T_cam[:3, 3]) @ world_T_cam[:3, :3]
+
+
+def pixels_and_pose_jacobian(
+    camera: CameraModel, world_T_cam: np.ndarray, world_p: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projected pixels and their Jacobians.
+
+    Args:
+        camera: the camera (only K is used).
+        world_T_cam: (4, 4) camera pose.
+        world_p: (K, 3) world points [m].
+
+    Returns:
+        ((K, 2) undistorted pixels, (K, 2, 6) d(pixel)/d(xi) for the pose
+        perturbation xi = [omega, v], (K, 2, 3) d(pixel)/d(world point)).
+    """
+    pc = cam_points(world_T_cam, np.asarray(world_p, float).reshape(-1, 3))
+    x, y = pc[:, 0], pc[:, 1]
+    z = np.maximum(pc[:, 2], MIN_DEPTH_M)
+    uv = np.stack([camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy], axis=1)
+    d_pi = np.zeros((len(pc), 2, 3))
+    d_pi[:, 0, 0] = camera.fx / z
+    d_pi[:, 0, 2] = -camera.fx * x / z**2
+    d_pi[:, 1, 1] = camera.fy / z
+    d_pi[:, 1, 2] = -camera.fy * y / z**2
+    # p_cam(xi) = Exp(-omega) (p_cam - v): d/d omega = [p_cam]x, d/dv = -I.
+    skew = np.zeros((len(pc), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2] = -pc[:, 2], pc[:, 1]
+    skew[:, 1, 0], skew[:, 1, 2] = pc[:, 2], -pc[:, 0]
+    skew[:, 2, 0], skew[:, 2, 1] = -pc[:, 1], pc[:, 0]
+    d_pose = np.concatenate([d_pi @ skew, -d_pi], axis=2)
+    d_point = d_pi @ world_T_cam[:3, :3].T
+    return uv, d_pose, d_point
+
+
+def pose_information(
+    camera: CameraModel, world_T_cam: np.ndarray, world_p: np.ndarray, sigma_px: np.ndarray
+) -> np.ndarray:
+    """(6, 6) Fisher information of one pose from keypoints with known world positions.
+
+    Args:
+        world_p: (K, 3) world points [m]; sigma_px: (K,) pixel sigma of each.
+    """
+    _, J, _ = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
+    w = 1.0 / np.asarray(sigma_px, float).reshape(-1) ** 2
+    return np.einsum("k,kai,kaj->ij", w, J, J)
+
+
+def position_cov_world(cov6: np.ndarray, world_R_cam: np.ndarray) -> np.ndarray:
+    """(3, 3) world-frame position covariance from a (6, 6) [rot, trans] camera-frame one."""
+    return world_R_cam @ cov6[3:, 3:] @ world_R_cam.T
+
+
+def chi2_survival_even(x: float, dof: int) -> float:
+    """P(chi2 > x) for an even number of degrees of freedom (closed form)."""
+    half = 0.5 * x
+    term, total = 1.0, 1.0
+    for i in range(1, dof // 2):
+        term *= half / i
+        total += term
+    return math.exp(-half) * total
+
+
+def chi2_quantile_even(p: float, dof: int) -> float:
+    """x with P(chi2 <= x) = p, for even ``dof`` (bisection on the closed form)."""
+    if dof % 2 or dof <= 0:
+        raise ValueError(f"dof must be even and positive, got {dof}")
+    tail = 1.0 - p
+    lo, hi = 0.0, float(dof)
+    while chi2_survival_even(hi, dof) > tail:
+        hi *= 2.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if chi2_survival_even(mid, dof) > tail:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
