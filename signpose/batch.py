@@ -10,6 +10,7 @@ Flights run in a local process pool, or on a Dask distributed cluster
 from __future__ import annotations
 
 import csv
+import enum
 import io
 import json
 import logging
@@ -17,24 +18,39 @@ import math
 import os
 import time
 import traceback
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Protocol
 
 from tqdm import tqdm
 
 from signpose.core.errors import InputError, SignposeError
 from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.io.camera_file import load_camera
+from signpose.maps.loader import load_map
+from signpose.pipeline import RunSettings, run
 
 log = logging.getLogger(__name__)
 
 DONE_MARKER = ".done.json"
 SUMMARY_NAME = "summary.csv"
-STATUS_OK = "ok"
-STATUS_PARTIAL = "partial"  # input truncated/corrupt: the readable part was processed
-STATUS_FAILED = "failed"
 _METHOD_ORDER = ("baseline", "pnp", "smoothed", "causal")
+
+
+class FlightStatus(enum.StrEnum):
+    """How a flight went; the value is the token in summary.csv and .done.json."""
+
+    OK = "ok"
+    PARTIAL = "partial"  # input truncated/corrupt: the readable part was processed
+    FAILED = "failed"
+
+
+class _Finished(Protocol):
+    """A finished job of a process pool or of Dask."""
+
+    def result(self) -> FlightOutcome: ...
 
 
 @dataclass(frozen=True)
@@ -72,7 +88,7 @@ class FlightOutcome:
 
     Attributes:
         flight: the flight's name.
-        status: "ok", "partial" (input cut short) or "failed".
+        status: how it went.
         frames: frames processed.
         coverage: method -> fraction of frames with a pose.
         position_rmse_m: method -> RMS position error vs ground truth [m].
@@ -82,7 +98,7 @@ class FlightOutcome:
     """
 
     flight: str
-    status: str
+    status: FlightStatus
     frames: int = 0
     coverage: dict[str, float] = field(default_factory=dict)
     position_rmse_m: dict[str, float] = field(default_factory=dict)
@@ -118,10 +134,6 @@ def _beside(input_path: Path, name: str) -> str:
 
 def run_flight(job: FlightJob) -> FlightOutcome:
     """Run one flight; never raises (failures are outcomes). Writes the done marker last."""
-    from signpose.io.camera_file import load_camera
-    from signpose.maps.loader import load_map
-    from signpose.pipeline import RunSettings, run
-
     t0 = time.perf_counter()
     try:
         out = ensure_dir(job.out_dir)
@@ -143,22 +155,22 @@ def run_flight(job: FlightJob) -> FlightOutcome:
         )
         outcome = FlightOutcome(
             job.flight,
-            STATUS_PARTIAL if result.problems else STATUS_OK,
-            result.n_frames,
-            result.coverage,
-            result.position_rmse_m,
-            time.perf_counter() - t0,
-            "; ".join(result.problems),
+            FlightStatus.PARTIAL if result.problems else FlightStatus.OK,
+            frames=result.n_frames,
+            coverage=result.coverage,
+            position_rmse_m=result.position_rmse_m,
+            time_s=time.perf_counter() - t0,
+            message="; ".join(result.problems),
         )
     except SignposeError as exc:
         return FlightOutcome(
-            job.flight, STATUS_FAILED, time_s=time.perf_counter() - t0, message=str(exc)
+            job.flight, FlightStatus.FAILED, time_s=time.perf_counter() - t0, message=str(exc)
         )
     except Exception as exc:  # noqa: BLE001 - one flight's bug must not stop the batch
         log.debug("flight %s failed:\n%s", job.flight, traceback.format_exc())
         return FlightOutcome(
             job.flight,
-            STATUS_FAILED,
+            FlightStatus.FAILED,
             time_s=time.perf_counter() - t0,
             message=f"internal error: {type(exc).__name__}: {exc}",
         )
@@ -186,9 +198,10 @@ def read_done(out_dir: Path) -> FlightOutcome | None:
     try:
         d = json.loads(marker.read_text(encoding="utf-8"))
         d = {k: v for k, v in d.items() if k in FlightOutcome.__dataclass_fields__}
+        d["status"] = FlightStatus(d["status"])
         d["skipped"] = True
         return FlightOutcome(**d)
-    except (OSError, ValueError, TypeError):
+    except (OSError, ValueError, TypeError, KeyError):
         return None  # unreadable marker: run the flight again
 
 
@@ -238,6 +251,66 @@ def _dask_client(scheduler: str):
         ) from None
 
 
+def _jobs(
+    inputs: list[str | os.PathLike],
+    names: list[str],
+    map_path: str | os.PathLike,
+    out: Path,
+    options: FlightJob,
+) -> tuple[dict[str, FlightOutcome], list[FlightJob]]:
+    """(flight -> outcome of an earlier run, the flights still to run).
+
+    ``options`` holds the settings shared by every flight (its flight and
+    paths are ignored).
+    """
+    done: dict[str, FlightOutcome] = {}
+    todo: list[FlightJob] = []
+    for name, inp in zip(names, inputs, strict=True):
+        earlier = read_done(out / name)
+        if earlier is not None:
+            done[name] = earlier
+            continue
+        todo.append(
+            replace(
+                options,
+                flight=name,
+                input_path=str(Path(inp).resolve()),
+                map_path=str(Path(map_path).resolve()),
+                out_dir=str((out / name).resolve()),
+            )
+        )
+    return done, todo
+
+
+def _run_jobs(
+    todo: list[FlightJob],
+    runner: Callable[[FlightJob], FlightOutcome],
+    jobs: int,
+    scheduler: str | None,
+) -> Iterator[FlightOutcome]:
+    """The flights' outcomes as they finish: on Dask, in a process pool, or one by one."""
+    if not todo:
+        return
+    if scheduler:
+        client = _dask_client(scheduler)
+        try:
+            from dask.distributed import as_completed as dask_completed
+
+            futures = {client.submit(runner, job, pure=False): job for job in todo}
+            for fut in dask_completed(futures):
+                yield _outcome_of(fut, futures[fut])
+        finally:
+            client.close()
+    elif jobs <= 1:
+        for job in todo:
+            yield runner(job)
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = {pool.submit(runner, job): job for job in todo}
+            for fut in as_completed(futures):
+                yield _outcome_of(fut, futures[fut])
+
+
 def run_batch(
     inputs: list[str | os.PathLike],
     map_path: str | os.PathLike,
@@ -272,32 +345,21 @@ def run_batch(
     """
     if not inputs:
         raise InputError("no flights given")
-    from signpose.maps.loader import load_map
-
     load_map(map_path)  # fail once, early, on a bad map
     out = ensure_dir(out_dir)
     names = flight_names(inputs)
-    outcomes: dict[str, FlightOutcome] = {}
-    todo: list[FlightJob] = []
-    for name, inp in zip(names, inputs, strict=True):
-        done = read_done(out / name)
-        if done is not None:
-            outcomes[name] = done
-            continue
-        todo.append(
-            FlightJob(
-                name,
-                str(Path(inp).resolve()),
-                str(Path(map_path).resolve()),
-                str((out / name).resolve()),
-                str(Path(camera_path).resolve()) if camera_path else "",
-                "",
-                topic or "",
-                float(fps or 0.0),
-                with_images,
-                plots,
-            )
-        )
+    options = FlightJob(
+        flight="",
+        input_path="",
+        map_path="",
+        out_dir="",
+        camera_path=str(Path(camera_path).resolve()) if camera_path else "",
+        topic=topic or "",
+        fps=float(fps or 0.0),
+        with_images=with_images,
+        plots=plots,
+    )
+    outcomes, todo = _jobs(inputs, names, map_path, out, options)
     bar = tqdm(
         total=len(inputs),
         initial=len(outcomes),
@@ -306,29 +368,9 @@ def run_batch(
         disable=not progress,
     )
     try:
-        if todo and scheduler:
-            client = _dask_client(scheduler)
-            try:
-                from dask.distributed import as_completed as dask_completed
-
-                futures = {client.submit(runner, job, pure=False): job for job in todo}
-                for fut in dask_completed(futures):
-                    job = futures[fut]
-                    outcomes[job.flight] = _outcome_of(fut, job)
-                    bar.update(1)
-            finally:
-                client.close()
-        elif todo and jobs <= 1:
-            for job in todo:
-                outcomes[job.flight] = runner(job)
-                bar.update(1)
-        elif todo:
-            with ProcessPoolExecutor(max_workers=jobs) as pool:
-                futures = {pool.submit(runner, job): job for job in todo}
-                for fut in as_completed(futures):
-                    job = futures[fut]
-                    outcomes[job.flight] = _outcome_of(fut, job)
-                    bar.update(1)
+        for outcome in _run_jobs(todo, runner, jobs, scheduler):
+            outcomes[outcome.flight] = outcome
+            bar.update(1)
     finally:
         bar.close()
         ordered = [outcomes[n] for n in names if n in outcomes]
@@ -336,10 +378,10 @@ def run_batch(
     return ordered
 
 
-def _outcome_of(fut, job: FlightJob) -> FlightOutcome:
+def _outcome_of(fut: _Finished, job: FlightJob) -> FlightOutcome:
     try:
         return fut.result()
     except Exception as exc:  # noqa: BLE001 - a worker died: record it, go on
         return FlightOutcome(
-            job.flight, STATUS_FAILED, message=f"worker failed: {type(exc).__name__}: {exc}"
+            job.flight, FlightStatus.FAILED, message=f"worker failed: {type(exc).__name__}: {exc}"
         )

@@ -83,7 +83,7 @@ def test_batch_with_a_bad_flight_then_rerun(flights, replay, tmp_path, capsys):
 
     def runner(job):
         seen.append(job.flight)
-        return batch.FlightOutcome(job.flight, batch.STATUS_FAILED, message="still bad")
+        return batch.FlightOutcome(job.flight, batch.FlightStatus.FAILED, message="still bad")
 
     outcomes = batch.run_batch(inputs, MAP, out, progress=False, runner=runner)
     assert seen == ["bad_video"]
@@ -92,7 +92,9 @@ def test_batch_with_a_bad_flight_then_rerun(flights, replay, tmp_path, capsys):
 
 
 def _fake_runner(job: batch.FlightJob) -> batch.FlightOutcome:
-    return batch.FlightOutcome(job.flight, batch.STATUS_OK, frames=3, coverage={"smoothed": 1.0})
+    return batch.FlightOutcome(
+        job.flight, batch.FlightStatus.OK, frames=3, coverage={"smoothed": 1.0}
+    )
 
 
 def test_dask_local_cluster(tmp_path):

@@ -14,6 +14,7 @@ import sys
 
 from signpose import __version__
 from signpose.core.errors import SignposeError
+from signpose.frontend.sign import ALL_CODES
 
 # Subcommand modules, in the order `signpose --help` lists them.
 COMMANDS = (
@@ -42,14 +43,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log diagnostics")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    # By name, not imported above: each subcommand imports ``add_quiet`` and
+    # ``codes_arg`` from this module.
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"signpose.cli.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"signpose.cli.{name}":
-                continue  # command not built yet
-            raise
-        module.register(sub)
+        importlib.import_module(f"signpose.cli.{name}").register(sub)
     return parser
 
 
@@ -86,8 +83,6 @@ def add_quiet(parser: argparse.ArgumentParser) -> None:
 
 def codes_arg(text: str) -> tuple[str, ...]:
     """argparse type for ``--codes 0001,0010``."""
-    from signpose.frontend.sign import ALL_CODES
-
     codes = tuple(c.strip() for c in text.split(",") if c.strip())
     bad = [c for c in codes if c not in ALL_CODES]
     if bad or not codes:

@@ -6,7 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from signpose.batch import SUMMARY_NAME, FlightStatus, run_batch
 from signpose.cli import add_quiet
+from signpose.core.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,9 +39,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from signpose.batch import STATUS_FAILED, SUMMARY_NAME, run_batch
-    from signpose.core.errors import InputError
-
     if args.jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {args.jobs}")
     outcomes = run_batch(
@@ -55,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         scheduler=args.scheduler,
         progress=not args.quiet,
     )
-    failed = [o for o in outcomes if o.status == STATUS_FAILED]
+    failed = [o for o in outcomes if o.status is FlightStatus.FAILED]
     skipped = sum(o.skipped for o in outcomes)
     print(
         f"{len(outcomes)} flights: {len(outcomes) - len(failed)} done "

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from signpose.io.results import compare_dir, metrics_table
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -19,8 +21,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from signpose.io.results import compare_dir, metrics_table
-
     compare_dir(args.dir, args.gt)
     print(metrics_table(args.dir))
     return 0

@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from signpose import pipeline
 from signpose.cli import add_quiet
+from signpose.cli.run import print_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,10 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from signpose.cli.run import print_result
-    from signpose.pipeline import run_demo
-
-    result = run_demo(
+    result = pipeline.run_demo(
         args.out,
         frames=args.frames,
         width=args.width,

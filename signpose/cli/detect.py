@@ -7,7 +7,10 @@ import json
 import sys
 from pathlib import Path
 
+import cv2
+
 from signpose.cli import codes_arg
+from signpose.frontend.detector import SignDetector
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,10 +35,6 @@ def _r(x: float) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-
-    from signpose.frontend.detector import SignDetector
-
     detector = SignDetector(args.cascade)
     n_read = 0
     for path in args.images:

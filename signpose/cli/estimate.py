@@ -8,6 +8,11 @@ from pathlib import Path
 
 from signpose.cli import add_quiet
 from signpose.core.errors import InputError
+from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
+from signpose.io.camera_file import load_camera
+from signpose.io.observations import read_observations
+from signpose.io.results import write_outputs
+from signpose.maps.loader import load_map
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -43,12 +48,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
-    from signpose.io.camera_file import load_camera
-    from signpose.io.observations import read_observations
-    from signpose.io.results import write_outputs
-    from signpose.maps.loader import load_map
-
     frames = read_observations(args.observations)
     sign_map = load_map(args.map)
     camera = load_camera(args.camera)

@@ -6,7 +6,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from signpose import pipeline
 from signpose.cli import add_quiet, codes_arg
+from signpose.core.errors import OutputError
+from signpose.io.camera_file import load_camera
+from signpose.io.sources import open_source
+from signpose.maps.loader import load_map
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,12 +38,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from signpose.core.errors import OutputError
-    from signpose.io.camera_file import load_camera
-    from signpose.io.sources import open_source
-    from signpose.maps.loader import load_map
-    from signpose.pipeline import ObserveSettings, observe
-
     sign_map = load_map(args.map) if args.map else None
     camera = load_camera(args.camera) if args.camera else None
     parent = args.out.parent if str(args.out.parent) else Path(".")
@@ -47,10 +46,11 @@ def run(args: argparse.Namespace) -> int:
     source = open_source(args.input, topic=args.topic, fps=args.fps)
     if camera is None:
         camera = source.camera
-    settings = ObserveSettings(
+    settings = pipeline.ObserveSettings(
         codes=args.codes, tracking=not args.no_tracking, workers=args.workers
     )
-    result = observe(source, sign_map, camera, settings, not args.quiet, out_path=args.out)
+    # Through the module, so that a test's stand-in for pipeline.observe is seen.
+    result = pipeline.observe(source, sign_map, camera, settings, not args.quiet, out_path=args.out)
     n = len(result.frames)
     signs = sum(len(f.signs) for f in result.frames)
     print(f"wrote {args.out}: {n} frames, {signs} sign observations")
