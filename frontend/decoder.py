@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from signpose.frontend import occlusion
 from signpose.frontend.homography import (
     Ellipse,
     affine_design,
@@ -80,6 +81,7 @@ class DecodeReason(enum.StrEnum):
     LOW_CONTRAST = "low_contrast"  # black and white too close to read
     CUT_BY_EDGE = "cut_by_edge"  # part of the sign lies outside the crop
     CODE_NOT_IN_MAP = "code_not_in_map"  # decoded, but the map has no sign with this code
+    OCCLUDED = "occluded"  # covered slots leave more than one code of the map possible
 
 
 REASONS: tuple[str, ...] = tuple(r.value for r in DecodeReason)
@@ -91,8 +93,9 @@ _REASON_RANK = {
     DecodeReason.AMBIGUOUS_DIRECTION: 3,
     DecodeReason.INCONSISTENT: 4,
     DecodeReason.CUT_BY_EDGE: 5,
-    DecodeReason.CODE_NOT_IN_MAP: 6,
-    DecodeReason.OK: 7,
+    DecodeReason.OCCLUDED: 6,  # the sign was read, but covered slots leave it open
+    DecodeReason.CODE_NOT_IN_MAP: 7,
+    DecodeReason.OK: 8,
 }
 
 # Sign geometry with the disc diameter as unit (the homography's sign plane).
@@ -173,6 +176,18 @@ def _grow_directions() -> np.ndarray:
 
 
 _PART_GROW = _grow_directions()
+# Half the smaller side of each part [diameters], for "does a band reach it".
+_PART_HALF = np.array(
+    [0.5 * min(np.linalg.norm(q[1] - q[0]), np.linalg.norm(q[3] - q[0])) for q in _PART_QUADS]
+)
+# The outer sampling ring of ``occlusion.dark_bands`` must lie in the crop.
+_OUTER_RING = 0.61 * _RIM / 0.46
+# Most erased slots a reading may keep (more is a wrong geometry, not an occluder).
+_MAX_ERASED = 2
+# Margin around the explained parts when looking for unexplained white:
+# at least this many diameters, and at least _BLUR_PX pixels.
+_UNEXPLAINED_GROW = 0.035
+_BLUR_PX = 2.0
 
 
 def _code_parts(code: str) -> tuple[list[int], tuple[str, ...], np.ndarray]:
@@ -270,6 +285,12 @@ class DecodeResult:
             pixels; None when there is no code.
         residual_px: RMS residual of the homography fit [px]; NaN when the
             fit is exact (four or fewer rectangles).
+        erased_slots: coded slots (1..4) whose bit the image does not show
+            (an occluder, a gray slot); the code is the one code of the map
+            that fits the other slots.
+        keypoint_sigma_px: keypoint name -> (sigma_u, sigma_v) [px], the
+            calibrated standard deviation of each coordinate (see
+            ``_keypoint_sigmas``); ``sigma_px`` is their geometric mean.
     """
 
     code: str | None
@@ -280,6 +301,8 @@ class DecodeResult:
     sigma_px: float = float("inf")
     image_H_sign: np.ndarray | None = None
     residual_px: float = float("nan")
+    erased_slots: tuple[int, ...] = ()
+    keypoint_sigma_px: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -369,9 +392,12 @@ class _Reading:
     """Gray-level reading of the five slot positions under one homography.
 
     Attributes:
-        code: the four bits, or None when the reading fails (``reason``).
+        code: the four bits ("x" where erased), or None when the reading
+            fails (``reason``).
         margin: the smaller of the bit and direction decision margins.
         black, white: the disc's and the location square's gray levels.
+        spread: interquartile spread of the disc's black samples, as a
+            fraction of white - black (noise, JPEG, dirt, glare).
     """
 
     code: str | None
@@ -379,6 +405,7 @@ class _Reading:
     margin: float
     black: float
     white: float
+    spread: float = 0.0
 
 
 # Why the slot reading works on Python floats rather than numpy arrays: it
@@ -457,17 +484,26 @@ def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSet
     direction_margin = rotation_cost[order[1]] - rotation_cost[order[0]]
     if order[0] != 0 or direction_margin < settings.min_direction_margin:
         return _Reading(None, DecodeReason.AMBIGUOUS_DIRECTION, direction_margin, black, white)
-    bits = [cost_coded[k] < cost_black[k] for k in range(1, N_BITS + 1)]
-    bit_margin = min(abs(cost_coded[k] - cost_black[k]) for k in range(1, N_BITS + 1))
-    margin = min(bit_margin, direction_margin)
     lo, hi = settings.max_black_frac, settings.min_white_frac
     mid = _N_OFFSETS // 2
-    dir_ok = rows[0][mid] >= hi - 0.1 and rows[0][0] <= lo + 0.1 and rows[0][-1] <= lo + 0.1
-    clear = all(_slot_is_clear(rows[k], bits[k - 1], settings) for k in range(1, N_BITS + 1))
-    if bit_margin < settings.min_bit_margin or not clear or not dir_ok:
-        return _Reading(None, DecodeReason.INCONSISTENT, margin, black, white)
-    code = "".join("1" if b else "0" for b in bits)
-    return _Reading(code, DecodeReason.OK, margin, black, white)
+    blacks = sorted(frac[_S_BLACK])
+    spread = blacks[-4] - blacks[3]
+    if not (rows[0][mid] >= hi - 0.1 and rows[0][0] <= lo + 0.1 and rows[0][-1] <= lo + 0.1):
+        return _Reading(None, DecodeReason.INCONSISTENT, direction_margin, black, white)
+    # A slot that is neither clearly white nor clearly black is erased: its bit
+    # is unknown, not guessed.
+    pattern, margins = [], [direction_margin]
+    for k in range(1, N_BITS + 1):
+        bit = cost_coded[k] < cost_black[k]
+        bit_margin = abs(cost_coded[k] - cost_black[k])
+        if bit_margin < settings.min_bit_margin or not _slot_is_clear(rows[k], bit, settings):
+            pattern.append("x")
+        else:
+            pattern.append("1" if bit else "0")
+            margins.append(bit_margin)
+    if pattern.count("x") > _MAX_ERASED:
+        return _Reading(None, DecodeReason.INCONSISTENT, min(margins), black, white)
+    return _Reading("".join(pattern), DecodeReason.OK, min(margins), black, white, spread)
 
 
 def _subpixel_centroids(
@@ -653,18 +689,55 @@ def _inside(points: np.ndarray, w: int, h: int, margin: float) -> bool:
     )
 
 
-def _sigma_px(residual_px: float, n_parts: int, scale_px: float) -> float:
-    """Keypoint noise [px] from the fit residual and the apparent size.
+@dataclass(frozen=True)
+class SigmaModel:
+    """Keypoint noise from what the decoder sees, calibrated by scripts/calibrate_sigma.py.
 
-    The residual measures the centroid noise when there are more parts than
-    the homography needs; a size term covers sampling/blur errors that the
-    residual cannot see (few parts, or errors common to all parts).
+    ``sigma^2 = floor^2 + (size / minor)^2 + (spread * contrast_term / minor)^2
+    + (residual * rms)^2``, times ``kind`` for the direction and slot
+    keypoints and ``occluded`` when an occluder crosses the face (its parts
+    are dropped, but a band's edge still pulls the neighbours' centroids).
+
+    Attributes:
+        floor_px: error left on large clean signs [px].
+        size_px2: size term [px^2]: sampling and blur, over the disc's minor axis [px].
+        spread_px2: noise term [px^2], per unit of the black samples' spread.
+        residual: factor on the homography fit's RMS residual (more than four parts).
+        direction, slot: factors for those keypoint kinds (the centre's is 1).
+        occluded: factor when the face shows an occluder.
     """
-    floor = 0.05 + 2.5 / max(scale_px, 1.0)
-    if n_parts > 4 and math.isfinite(residual_px):
-        dof_scale = math.sqrt(2 * n_parts / (2 * n_parts - 8))
-        return float(math.hypot(floor, residual_px * dof_scale))
-    return float(floor * (1.5 if n_parts < 4 else 1.2))
+
+    floor_px: float = 0.02
+    size_px2: float = 1.0
+    spread_px2: float = 4.0
+    residual: float = 1.0
+    direction: float = 1.5
+    slot: float = 1.0
+    occluded: float = 2.0
+
+
+SIGMA_MODEL = SigmaModel()
+
+
+def _keypoint_sigmas(
+    reading: _Reading, refined: _Refined, names: list[str], ellipse: Ellipse, crossed: bool
+) -> dict[str, tuple[float, float]]:
+    """Per keypoint (sigma_u, sigma_v) [px] from ``SIGMA_MODEL`` (equal axes for now)."""
+    m = SIGMA_MODEL
+    minor = max(float(ellipse[1][1]), 1.0)
+    rms = refined.residual_px if math.isfinite(refined.residual_px) else 0.0
+    base2 = (
+        m.floor_px**2
+        + (m.size_px2 / minor) ** 2
+        + (m.spread_px2 * reading.spread / minor) ** 2
+        + (m.residual * rms) ** 2
+    )
+    base = math.sqrt(base2) * (m.occluded if crossed else 1.0)
+    out = {}
+    for name in names:
+        k = 1.0 if name == "center" else (m.direction if name == "direction" else m.slot)
+        out[name] = (base * k, base * k)
+    return out
 
 
 def _as_gray(image: np.ndarray) -> np.ndarray:
@@ -1072,11 +1145,18 @@ class _Refined:
 
 
 def _refine(
-    region: _Region, image_H_sign: np.ndarray, code: str, reading: _Reading, major_px: float
+    region: _Region,
+    image_H_sign: np.ndarray,
+    parts: list[int],
+    pattern: str,
+    reading: _Reading,
+    major_px: float,
 ) -> _Refined | None:
-    """Refit to the white parts' gray-level centroids; None when the story changes."""
+    """Refit to the gray-level centroids of ``parts``; None when the story changes.
+
+    ``pattern``: the accepted bits, "x" where erased.
+    """
     g, settings = region.gray, region.settings
-    parts = _CODE_PARTS[code][0]
     cents, valid = _subpixel_centroids(g, image_H_sign, parts, reading.black, reading.white, 1.5)
     use = [p for p, v in zip(parts, valid, strict=True) if v]
     cents_used = cents[valid]
@@ -1094,7 +1174,8 @@ def _refine(
     before = _project(image_H_sign, _PART_CENTRES[:2])
     after = _project(h_ref, _PART_CENTRES[:2])
     moved = float(np.abs(after - before).max())
-    if moved > 0.1 * major_px or _read_slots(g, h_ref, settings).code != code:
+    again = _read_slots(g, h_ref, settings).code
+    if moved > 0.1 * major_px or again is None or not _consistent(again, pattern):
         return None
     return _Refined(h_ref, use, cents_used, rms)
 
@@ -1120,6 +1201,71 @@ def _keypoints_from_rim(
     return uv, _translated(h_rim, shift)
 
 
+def _pool(allowed: frozenset[str] | None) -> list[str]:
+    """The codes a reading may take: the map's, or all 16."""
+    return list(ALL_CODES) if allowed is None else sorted(allowed)
+
+
+@dataclass(frozen=True)
+class _Occlusion:
+    """What the face shows of an occluder under one reading.
+
+    Attributes:
+        pattern: the reading's bits with "x" for every erased slot.
+        covered_parts: part indices (0..5) a band or a dark patch covers.
+    """
+
+    pattern: str
+    covered_parts: frozenset[int]
+
+
+def _occlusion(g: np.ndarray, image_H_sign: np.ndarray, reading: _Reading) -> _Occlusion:
+    """Erase black-read slots a dark band crosses; find the white parts it covers."""
+    h, w = g.shape
+    inside = _inside(_project(image_H_sign, _OUTER_RING), w, h, 0.0)
+    pattern = list(reading.code)
+    white = [0, 1] + [1 + k for k in range(1, N_BITS + 1) if pattern[k - 1] == "1"]
+    bands = occlusion.dark_bands(
+        g, image_H_sign, reading.black, reading.white, inside, _PART_CENTRES[white]
+    )
+    band_hits = occlusion.crossed(bands, _PART_CENTRES, _PART_HALF)
+    dark_inside = occlusion.interior_not_white(
+        g, image_H_sign, _PART_QUADS[white], reading.black, reading.white
+    )
+    covered = {p for p, d in zip(white, dark_inside.tolist(), strict=True) if d}
+    covered |= {p for p in white if band_hits[p]}
+    for k in range(1, N_BITS + 1):
+        if pattern[k - 1] == "0" and band_hits[1 + k]:
+            pattern[k - 1] = "x"
+        if pattern[k - 1] == "x":
+            covered.add(1 + k)
+    return _Occlusion("".join(pattern), frozenset(covered))
+
+
+def _accept_code(
+    region: _Region, image_H_sign: np.ndarray, reading: _Reading, scale_px: float
+) -> tuple[str | None, _Occlusion | None, DecodeReason]:
+    """The one code the reading allows, with its occlusion, or why there is none."""
+    occ = _occlusion(region.gray, image_H_sign, reading)
+    if {0, 1} & occ.covered_parts:
+        return None, occ, DecodeReason.OCCLUDED  # no sign frame without both
+    # Slots of unknown bit and the read code's white parts explain white.
+    known = [0, 1] + [1 + k for k in range(1, N_BITS + 1) if occ.pattern[k - 1] != "0"]
+    grow = max(_UNEXPLAINED_GROW, _BLUR_PX / max(scale_px, 1.0))
+    if occlusion.unexplained_white(
+        region.gray, image_H_sign, _PART_QUADS[known], reading.black, reading.white, grow
+    ):
+        return None, occ, DecodeReason.INCONSISTENT
+    if "x" not in occ.pattern:
+        if region.allowed is not None and occ.pattern not in region.allowed:
+            return None, occ, DecodeReason.CODE_NOT_IN_MAP
+        return occ.pattern, occ, DecodeReason.OK
+    fits = [c for c in _pool(region.allowed) if _consistent(occ.pattern, c)]
+    if len(fits) != 1:
+        return None, occ, DecodeReason.OCCLUDED
+    return fits[0], occ, DecodeReason.OK
+
+
 def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> DecodeResult:
     """Read the sign under one (location, directional) hypothesis and verify it."""
     g, settings = region.gray, region.settings
@@ -1133,16 +1279,17 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
     if reading.code is None:
         return _fail(reading.reason, quality=max(0.0, reading.margin))
     contour_code = "".join("1" if s in slots else "0" for s in range(1, N_BITS + 1))
-    if reading.code != contour_code:
+    if not _consistent(reading.code, contour_code):
         return _fail(DecodeReason.INCONSISTENT, quality=reading.margin)
-    code = reading.code
-    refined = _refine(region, image_H_sign, code, reading, major_px)
+    code, occ, reason = _accept_code(region, image_H_sign, reading, major_px)
+    if code is None:
+        return _fail(reason, quality=reading.margin)
+    erased = tuple(k for k in range(1, N_BITS + 1) if occ.pattern[k - 1] == "x")
+    kp_parts = [p for p in _CODE_PARTS[code][0] if p not in occ.covered_parts]
+    refined = _refine(region, image_H_sign, kp_parts, occ.pattern, reading, major_px)
     if refined is None:
         return _fail(DecodeReason.INCONSISTENT, quality=reading.margin)
-    if region.allowed is not None and code not in region.allowed:
-        return _fail(DecodeReason.CODE_NOT_IN_MAP, quality=reading.margin)
-    kp_parts, kp_names, kp_centres = _CODE_PARTS[code]
-    uv = _project(refined.image_H_sign, kp_centres)
+    uv = _project(refined.image_H_sign, _PART_CENTRES[kp_parts])
     image_H_sign = refined.image_H_sign
     n_used = len(refined.used_parts)
     if 2 <= n_used < 4 and region.rim_contour is not None and settings.perspective_correction:
@@ -1154,16 +1301,25 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
     quality = min(max(reading.margin / 0.5, 0.0), 1.0) * math.exp(
         -(rms if math.isfinite(rms) else 0.0) / 0.5
     )
+    names = [_PART_NAMES[p] for p in kp_parts]
+    sigmas = _keypoint_sigmas(reading, refined, names, ellipse, bool(occ.covered_parts))
     return DecodeResult(
         code=code,
         reason=DecodeReason.OK,
-        keypoints_px={n: (float(p[0]), float(p[1])) for n, p in zip(kp_names, uv, strict=True)},
+        keypoints_px={n: (float(p[0]), float(p[1])) for n, p in zip(names, uv, strict=True)},
         ellipse=ellipse,
         quality=float(quality),
-        sigma_px=_sigma_px(rms, n_used, ellipse[1][1]),
+        sigma_px=float(np.sqrt(np.mean([s[0] * s[1] for s in sigmas.values()]))),
         image_H_sign=image_H_sign,
         residual_px=rms,
+        erased_slots=erased,
+        keypoint_sigma_px=sigmas,
     )
+
+
+def _consistent(a: str, b: str) -> bool:
+    """Whether two bit patterns agree on every slot both know ("x": erased)."""
+    return all(p == q or "x" in (p, q) for p, q in zip(a, b, strict=True))
 
 
 def _homography_from_rim(
@@ -1288,4 +1444,6 @@ def decode_region(
         sigma_px=res.sigma_px,
         image_H_sign=_translated(res.image_H_sign, (x0, y0)),
         residual_px=res.residual_px,
+        erased_slots=res.erased_slots,
+        keypoint_sigma_px=res.keypoint_sigma_px,
     )

@@ -4,10 +4,12 @@ One line per frame, in frame order; a frame with no signs is still a line::
 
     {"frame": 0, "stamp_ns": 0, "image_size": [1920, 1080],
      "signs": [{"code": "0101", "keypoints_px": {"center": [u, v], "direction": [u, v]},
-                "bbox_px": [x, y, w, h], "sigma_px": 0.4, "score": 1.0}]}
+                "bbox_px": [x, y, w, h], "sigma_px": 0.4, "score": 1.0,
+                "erased_slots": [2], "keypoint_sigma_px": {"center": [su, sv]}}]}
 
 Pixels are raw image pixels (distorted, centres at integers). Only ``code``
-and ``keypoints_px.center`` are required for a sign. The file is read and
+and ``keypoints_px.center`` are required for a sign; ``erased_slots`` and
+``keypoint_sigma_px`` are written only when not empty. The file is read and
 written by ``signpose.io.observations``.
 """
 
@@ -27,8 +29,15 @@ class SignObservation:
         keypoints_px: keypoint name -> (u, v) raw pixel position; always has
             ``center``; other names as in ``frontend.sign.KEYPOINT_NAMES``.
         bbox_px: (x, y, w, h) region in pixels, or None.
-        sigma_px: standard deviation of each keypoint coordinate [px].
+        sigma_px: standard deviation of each keypoint coordinate [px] (one
+            value for all; ``keypoint_sigma_px`` refines it per keypoint).
         score: detector/decoder confidence in [0, 1].
+        erased_slots: coded slots (1..4) the image did not show (an
+            occluder); ``code`` is the one code of the map that fits the
+            others. Empty for a sign read whole.
+        keypoint_sigma_px: keypoint name -> (sigma_u, sigma_v) [px], the
+            decoder's calibrated noise per keypoint and axis; empty when
+            unknown (then ``sigma_px`` holds for every keypoint).
     """
 
     code: str
@@ -36,6 +45,8 @@ class SignObservation:
     bbox_px: tuple[float, float, float, float] | None = None
     sigma_px: float = DEFAULT_SIGMA_PX
     score: float = 1.0
+    erased_slots: tuple[int, ...] = ()
+    keypoint_sigma_px: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def center_px(self) -> tuple[float, float]:

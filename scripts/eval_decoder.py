@@ -35,11 +35,15 @@ from pathlib import Path
 import numpy as np
 from signpose.frontend.decoder import DecoderSettings, decode_roi
 from signpose.frontend.homography import apply_homography, disc_ellipse, polygon_centroids
-from signpose.frontend.sign import ALL_CODES, sign_shape
+from signpose.frontend.sign import ALL_CODES, PAPER_CODES, sign_shape
 from tqdm import tqdm
 
 from signpose.core.fileio import atomic_write
 from signpose.sim.crops import render_crop
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from independent_scene import CONDITIONS as INDEPENDENT_CONDITIONS  # noqa: E402
+from independent_scene import render_scene_crop, scene_settings  # noqa: E402
 
 BACKGROUND_WEIGHTS = {
     "plain": 0.2,
@@ -156,6 +160,128 @@ def rms(errs) -> float:
     return float(np.sqrt((e**2).sum(axis=1).mean())) if len(e) else float("nan")
 
 
+# ---- The independent scenes (scripts/independent_scene.py).
+
+
+def _group(crop) -> str:
+    """Occlusion group of a scene crop, from its covered-part truth."""
+    if max(crop.covered.values()) < 0.02:
+        return "unoccluded"
+    n = len(crop.covered_slots)
+    return (
+        "occluded, 0 slots" if n == 0 else ("occluded, 1 slot" if n == 1 else "occluded, 2+ slots")
+    )
+
+
+def _unique_with_one_erased(code: str, slot: int, codes) -> bool:
+    flipped = code[: slot - 1] + ("0" if code[slot - 1] == "1" else "1") + code[slot:]
+    return flipped not in codes
+
+
+def run_independent(n_per_condition: int, seed: int, quiet: bool) -> dict:
+    """Decode ``n_per_condition`` independent crops per condition; print and return the table."""
+    codes = PAPER_CODES
+    rng = np.random.default_rng(seed)
+    table: dict = {}
+    sigma_rows = []
+    print(
+        f"\nIndependent scenes (scripts/independent_scene.py, photographs, 3D bars, JPEG; "
+        f"{n_per_condition} crops per condition, map = the paper's 10 codes, seed {seed})"
+    )
+    print(f"{'Condition':<22}{'group':<20}{'n':>6}{'correct':>9}{'refused':>9}{'WRONG':>7}")
+    for cond in INDEPENDENT_CONDITIONS:
+        counts: dict[str, Counter] = defaultdict(Counter)
+        for i in tqdm(range(n_per_condition), desc=cond, disable=quiet, leave=False):
+            s = scene_settings(rng, cond)
+            crop = render_scene_crop(codes[i % len(codes)], s, rng)
+            res = decode_roi(crop.image, codes)
+            group = _group(crop)
+            outcome = (
+                "correct" if res.code == crop.code else ("refused" if res.code is None else "wrong")
+            )
+            keys = [group]
+            if group == "unoccluded" and s.sign_px >= 18:
+                keys.append("unoccluded >= 18 px")
+            if group == "occluded, 1 slot":
+                slot = crop.covered_slots[0]
+                if _unique_with_one_erased(crop.code, slot, codes):
+                    keys.append("1 slot, unique in map")
+            for key in keys + ["all"]:
+                counts[key]["n"] += 1
+                counts[key][outcome] += 1
+                counts[key]["reason:" + str(res.reason)] += 1
+            if outcome == "correct":
+                sigma_rows.append(_sigma_row(cond, group, crop, res))
+        table[cond] = {k: dict(v) for k, v in counts.items()}
+        for key in (
+            "all",
+            "unoccluded >= 18 px",
+            "occluded, 0 slots",
+            "occluded, 1 slot",
+            "1 slot, unique in map",
+            "occluded, 2+ slots",
+        ):
+            c = counts.get(key)
+            if not c:
+                continue
+            print(
+                f"{cond:<22}{key:<20}{c['n']:>6}{100 * c['correct'] / c['n']:>8.1f}%"
+                f"{100 * c['refused'] / c['n']:>8.1f}%{c['wrong']:>7}"
+            )
+    total_wrong = sum(t["all"].get("wrong", 0) for t in table.values())
+    total_n = sum(t["all"]["n"] for t in table.values())
+    print(f"  wrong codes overall: {total_wrong} of {total_n}")
+    calib = _sigma_table(sigma_rows)
+    return {
+        "n_per_condition": n_per_condition,
+        "seed": seed,
+        "table": table,
+        "wrong": total_wrong,
+        "n": total_n,
+        "sigma_calibration": calib,
+    }
+
+
+def _sigma_row(cond, group, crop, res) -> dict:
+    """Per-keypoint normalised errors (error / sigma per axis) of one correct decode."""
+    out = {"condition": cond, "group": group, "z": {}}
+    sig = getattr(res, "keypoint_sigma_px", None) or {}
+    for name, uv in res.keypoints_px.items():
+        su, sv = sig.get(name, (res.sigma_px, res.sigma_px))
+        e = np.subtract(uv, crop.keypoints_px[name])
+        out["z"][name] = (float(e[0] / su), float(e[1] / sv), float(e[0]), float(e[1]))
+    return out
+
+
+def _sigma_table(rows) -> dict:
+    """rms(error / sigma) per condition and keypoint kind (centre / direction / slots)."""
+    acc: dict = defaultdict(list)
+    for r in rows:
+        for name, z in r["z"].items():
+            kind = name if name in ("center", "direction") else "slot"
+            acc[(r["condition"], kind)].append(z)
+    print(
+        "\n  sigma_px calibration, correct decodes: rms(error / sigma) per axis (u, v), "
+        "rms error [px]"
+    )
+    out = {}
+    for (cond, kind), zs in sorted(acc.items()):
+        z = np.asarray(zs)
+        ru, rv = np.sqrt((z[:, :2] ** 2).mean(axis=0))
+        eu, ev = np.sqrt((z[:, 2:] ** 2).mean(axis=0))
+        out[f"{cond}/{kind}"] = {
+            "n": len(z),
+            "rms_z_u": float(ru),
+            "rms_z_v": float(rv),
+            "rms_err_u_px": float(eu),
+            "rms_err_v_px": float(ev),
+        }
+        print(
+            f"  {cond:<22}{kind:<10}{len(z):>6}  z {ru:5.2f} {rv:5.2f}   err {eu:6.3f} {ev:6.3f} px"
+        )
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="small run (a few hundred crops)")
@@ -164,7 +290,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=2017)
     ap.add_argument("--json", type=Path, default=None, help="also write the numbers here")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    ap.add_argument(
+        "--independent",
+        type=int,
+        default=None,
+        help="crops per condition of the independent scenes (default 100 quick, 400; 0: skip)",
+    )
+    ap.add_argument("--independent-only", action="store_true", help="only the independent scenes")
     args = ap.parse_args(argv)
+    n_indep = args.independent if args.independent is not None else (100 if args.quick else 400)
+    if args.independent_only:
+        indep = run_independent(n_indep, args.seed, args.quiet)
+        if args.json is not None:
+            with atomic_write(args.json) as f:
+                json.dump({"independent": indep}, f, indent=2)
+            print(f"wrote {args.json}")
+        return 0
     n_main = args.n or (320 if args.quick else 2048)
     n_cond = args.per_condition or (48 if args.quick else 256)
     rng = np.random.default_rng(args.seed)
@@ -318,8 +459,11 @@ def main(argv: list[str] | None = None) -> int:
             f"not decoded {np.median(cpu[~ok]):.3f} ms (every fallback tried)"
         )
 
+    indep = run_independent(n_indep, args.seed, args.quiet) if n_indep > 0 else None
+
     if args.json is not None:
         out = {
+            "independent": indep,
             "seed": args.seed,
             "n_main": n_main,
             "table2": {

@@ -33,6 +33,14 @@ def frame_to_dict(obs: FrameObservations) -> dict:
             d["bbox_px"] = [_num(v) for v in s.bbox_px]
         d["sigma_px"] = _num(s.sigma_px)
         d["score"] = _num(s.score)
+        # Optional fields (issue 11), left out when empty so older files and
+        # writers stay byte-identical.
+        if s.erased_slots:
+            d["erased_slots"] = [int(k) for k in s.erased_slots]
+        if s.keypoint_sigma_px:
+            d["keypoint_sigma_px"] = {
+                k: [_num(v[0]), _num(v[1])] for k, v in s.keypoint_sigma_px.items()
+            }
         signs.append(d)
     return {
         "frame": int(obs.frame),
@@ -54,6 +62,27 @@ def _pair(value, where: str) -> tuple[float, float]:
     if not (math.isfinite(u) and math.isfinite(v)):
         raise ValueError(f"{where} is not finite")
     return (u, v)
+
+
+def _optional_fields(
+    s: dict, i: int, keypoints: dict
+) -> tuple[tuple[int, ...], dict[str, tuple[float, float]]]:
+    """``erased_slots`` and ``keypoint_sigma_px`` of sign ``i`` (both may be absent)."""
+    erased = s.get("erased_slots", [])
+    if not isinstance(erased, list) or any(k not in (1, 2, 3, 4) for k in erased):
+        raise ValueError(f"sign #{i + 1}: erased_slots must be a list of slots 1..4")
+    sig = s.get("keypoint_sigma_px", {})
+    if not isinstance(sig, dict):
+        raise ValueError(f"sign #{i + 1}: keypoint_sigma_px must be an object")
+    kp_sigma = {}
+    for name, value in sig.items():
+        if name not in keypoints:
+            raise ValueError(f"sign #{i + 1}: keypoint_sigma_px.{name} has no keypoint")
+        su, sv = _pair(value, f"sign #{i + 1}: keypoint_sigma_px.{name}")
+        if su <= 0 or sv <= 0:
+            raise ValueError(f"sign #{i + 1}: keypoint_sigma_px.{name} must be > 0")
+        kp_sigma[name] = (su, sv)
+    return tuple(int(k) for k in erased), kp_sigma
 
 
 def frame_from_dict(d: dict) -> FrameObservations:
@@ -92,7 +121,8 @@ def frame_from_dict(d: dict) -> FrameObservations:
         if not math.isfinite(sigma) or sigma <= 0:
             raise ValueError(f"sign #{i + 1}: sigma_px must be > 0")
         score = float(s.get("score", 1.0))
-        signs.append(SignObservation(code, keypoints, bbox, sigma, score))
+        erased, kp_sigma = _optional_fields(s, i, keypoints)
+        signs.append(SignObservation(code, keypoints, bbox, sigma, score, erased, kp_sigma))
     return FrameObservations(
         frame=int(d["frame"]),
         stamp_ns=int(d["stamp_ns"]),

@@ -1,0 +1,245 @@
+"""Evidence that something in front of a sign hides part of it (issue 11, item 1).
+
+A pylon member or a conductor in front of a sign is opaque: where it crosses a
+white coded rectangle the slot looks black, and a plain reading turns 1011
+into 0011, another valid code. This module looks for what such a bar leaves
+behind, given the sign's homography and its black and white gray levels:
+
+* a dark band: the bar continues past the disc's rim, so the ring just outside
+  the rim shows dark runs where it enters and leaves; the chord between two
+  runs stays dark all the way across the face (over white parts too);
+* white parts whose inside is not white throughout (a thin conductor, a
+  bright bar over black is caught by the decoder's gray-level reading);
+* white inside the disc that no part of the read code explains (a reading
+  whose homography missed two white slots, or glare on the face).
+
+Plane coordinates are the decoder's: the sign plane in units of the disc
+diameter (x right, y up, origin at the centre, rim at radius 0.5).
+
+Limit: a bar darker than the face's black that ends inside the disc (no
+second crossing), or a background as dark as the disc all around the rim,
+leaves no band; a white slot hidden that way reads 0. Around-the-rim runs
+longer than ``_MAX_RUN_DEG`` are not taken as bars.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+# Rings sampled just outside the rim [diameters]; both must be dark.
+_RING_RADII = (0.55, 0.6)
+_N_RING = 64
+# A white fraction at or below this is dark enough to hide a white slot
+# (the decoder reads a slot at most 0.35 + 0.1 white as black).
+_DARK_FRAC = 0.45
+# A run of dark rim samples this long is dark background, not a bar [deg].
+_MAX_RUN_DEG = 150.0
+# A band runs over a white part when its centre line passes this close to
+# the part's centre [diameters] (the smaller half-side of a coded slot).
+_ON_PART = 0.08
+# A band's gray level inside the disc, as a white fraction, must be this far
+# above the print's black and match its level outside the rim this well.
+_BAR_ABOVE_BLACK = 0.1
+_BAR_LEVEL_MATCH = 0.2
+# Points along a chord checked for darkness, and the chord's inner extent.
+_N_CHORD = 17
+_CHORD_INNER = 0.47
+# White-part interior grid (fractions of the part, inset from its edges).
+_INSET = np.linspace(0.2, 0.8, 4)
+# Polar grid over the face for unexplained white.
+_GRID_RADII = np.linspace(0.07, 0.45, 10)
+_GRID_ANGLES = np.radians(np.arange(0.0, 360.0, 7.5))
+_WHITE_FRAC = 0.6
+# Largest share of face samples allowed to be unexplained white.
+_MAX_UNEXPLAINED = 0.02
+
+
+@dataclass(frozen=True)
+class Band:
+    """A dark band across the face, as the chord between two rim points.
+
+    Attributes:
+        p0, p1: (2,) chord ends on the rim [diameters].
+        half_width: half the band's width [diameters].
+    """
+
+    p0: np.ndarray
+    p1: np.ndarray
+    half_width: float
+
+    def distance(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) distances [diameters] of (N, 2) points from the band's centre line."""
+        d = self.p1 - self.p0
+        n = np.array([-d[1], d[0]]) / max(float(np.hypot(*d)), 1e-12)
+        return np.abs((np.asarray(xy) - self.p0) @ n)
+
+
+def _sample(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    m = uv.astype(np.float32).reshape(1, -1, 2)
+    out = cv2.remap(gray, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1).astype(float)
+
+
+def _project(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    return cv2.perspectiveTransform(xy.reshape(-1, 1, 2).astype(float), h).reshape(-1, 2)
+
+
+_RING_ANGLES = np.linspace(0.0, 2 * math.pi, _N_RING, endpoint=False)
+_RING_POINTS = np.concatenate(
+    [r * np.stack([np.cos(_RING_ANGLES), np.sin(_RING_ANGLES)], axis=1) for r in _RING_RADII]
+)
+
+
+def _dark_runs(dark: np.ndarray, level: np.ndarray) -> list[tuple[float, float, float]]:
+    """(centre angle [rad], half width [rad], mean level) of each circular run of True."""
+    n = len(dark)
+    if dark.all() or not dark.any():
+        return []
+    start = int(np.argmin(dark))  # a bright sample: runs do not wrap past it
+    order = np.roll(np.arange(n), -start)
+    runs, cur = [], []
+    for i in order.tolist() + [start]:
+        if dark[i]:
+            cur.append(i)
+        elif cur:
+            runs.append(cur)
+            cur = []
+    step = 2 * math.pi / n
+    out = []
+    for run in runs:
+        width = len(run) * step
+        if math.degrees(width) > _MAX_RUN_DEG:
+            continue
+        # Index positions unwrap across 0 because the run starts after ``start``.
+        pos = [(i - start) % n + start for i in run]
+        centre = (pos[0] + (len(pos) - 1) / 2.0) * step
+        out.append((centre, width / 2.0, float(level[run].mean())))
+    return out
+
+
+def dark_bands(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    black: float,
+    white: float,
+    inside: bool,
+    white_centres: np.ndarray,
+) -> list[Band]:
+    """Dark bands in front of the face: two dark rim runs joined by a dark chord.
+
+    A bar behind the sign also darkens the rim on both sides, and over the
+    black disc its chord is dark too. It is taken to be in front only when
+    the chord crosses a white part (which then shows dark under it), or when
+    the chord's gray level inside the disc differs from the print's black and
+    matches the bar's level outside.
+
+    Args:
+        gray: (H, W) uint8 crop.
+        image_H_sign: (3, 3) homography [diameters -> px].
+        black, white: the face's gray levels.
+        inside: whether the outer ring lies inside the crop (else no bands).
+        white_centres: (P, 2) centres of the parts the reading sees white [diameters].
+    """
+    if not inside:
+        return []
+    contrast = max(white - black, 1e-6)
+    frac = (_sample(gray, _project(image_H_sign, _RING_POINTS)) - black) / contrast
+    rings = frac.reshape(len(_RING_RADII), _N_RING)
+    runs = _dark_runs((rings <= _DARK_FRAC).all(axis=0), rings.mean(axis=0))
+    if len(runs) < 2:
+        return []
+    pairs = [(i, j) for i in range(len(runs)) for j in range(i + 1, len(runs))]
+
+    def rim_point(angle: float) -> np.ndarray:
+        return 0.5 * np.array([math.cos(angle), math.sin(angle)])
+
+    ends = [(rim_point(runs[i][0]), rim_point(runs[j][0])) for i, j in pairs]
+    t = np.linspace(0.0, 1.0, _N_CHORD)[:, None]
+    pts = np.concatenate([p0 + t * (p1 - p0) for p0, p1 in ends])
+    keep = (np.hypot(pts[:, 0], pts[:, 1]) < _CHORD_INNER).reshape(len(ends), _N_CHORD)
+    chord = (_sample(gray, _project(image_H_sign, pts)) - black) / contrast
+    chord = chord.reshape(len(ends), _N_CHORD)
+    bands = []
+    for k, (i, j) in enumerate(pairs):
+        inner = chord[k][keep[k]]
+        if not len(inner) or (inner > _DARK_FRAC).any():
+            continue
+        band = Band(ends[k][0], ends[k][1], 0.5 * math.sin(min(runs[i][1], runs[j][1])))
+        over_white = bool(len(white_centres)) and bool(
+            (band.distance(white_centres) < _ON_PART).any()
+        )
+        level_in, level_out = float(np.median(inner)), 0.5 * (runs[i][2] + runs[j][2])
+        distinct = level_in > _BAR_ABOVE_BLACK and abs(level_in - level_out) < _BAR_LEVEL_MATCH
+        if over_white or distinct:
+            bands.append(band)
+    return bands
+
+
+def crossed(bands: list[Band], centres: np.ndarray, half_sizes: np.ndarray) -> np.ndarray:
+    """(P,) whether any band reaches each part (centres (P, 2), half sizes (P,) [diameters])."""
+    out = np.zeros(len(centres), bool)
+    for band in bands:
+        out |= band.distance(centres) < band.half_width + half_sizes
+    return out
+
+
+def interior_not_white(
+    gray: np.ndarray, image_H_sign: np.ndarray, quads: np.ndarray, black: float, white: float
+) -> np.ndarray:
+    """(P,) whether each white part (quads (P, 4, 2) [diameters]) is dark anywhere inside."""
+    a, b = np.meshgrid(_INSET, _INSET)
+    a, b = a.ravel()[:, None], b.ravel()[:, None]
+    pts = []
+    for q in quads:
+        # Bilinear points inside the quad, inset from its edges.
+        pts.append(
+            (1 - a) * (1 - b) * q[0] + a * (1 - b) * q[1] + a * b * q[2] + (1 - a) * b * q[3]
+        )
+    pts = np.concatenate(pts)
+    frac = (_sample(gray, _project(image_H_sign, pts)) - black) / max(white - black, 1e-6)
+    return (frac.reshape(len(quads), -1) < 0.5).any(axis=1)
+
+
+_GRID = np.concatenate(
+    [r * np.stack([np.cos(_GRID_ANGLES), np.sin(_GRID_ANGLES)], axis=1) for r in _GRID_RADII]
+)
+
+
+def _inside_quads(xy: np.ndarray, quads: np.ndarray, grow: float) -> np.ndarray:
+    """(N,) whether points lie in any convex quad grown by ``grow`` (same units)."""
+    inside = np.zeros(len(xy), bool)
+    for q in quads:
+        c = q.mean(axis=0)
+        ok = np.ones(len(xy), bool)
+        for k in range(4):
+            e = q[(k + 1) % 4] - q[k]
+            n = np.array([e[1], -e[0]]) / np.hypot(*e)
+            if (c - q[k]) @ n > 0:
+                n = -n  # outward normal
+            ok &= (xy - q[k]) @ n <= grow
+        inside |= ok
+    return inside
+
+
+def unexplained_white(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    known_quads: np.ndarray,
+    black: float,
+    white: float,
+    grow: float,
+) -> bool:
+    """White on the face outside every part the reading explains.
+
+    Args:
+        known_quads: (P, 4, 2) quads [diameters] of the read code's white parts
+            and of every slot whose bit is unknown.
+        grow: margin around them for blur [diameters].
+    """
+    pts = _GRID[~_inside_quads(_GRID, known_quads, grow)]
+    frac = (_sample(gray, _project(image_H_sign, pts)) - black) / max(white - black, 1e-6)
+    return int((frac > _WHITE_FRAC).sum()) > max(1, _MAX_UNEXPLAINED * len(pts))

@@ -1,0 +1,110 @@
+"""Occlusion-aware decoding (issue 11, item 1): a covered slot is erased, never guessed."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from signpose.frontend import occlusion
+from signpose.frontend.decoder import REASONS, DecodeReason, decode_roi
+from signpose.frontend.homography import apply_homography
+from signpose.frontend.observations import FrameObservations, SignObservation
+from signpose.frontend.sign import sign_shape, slot_angle_rad
+
+from signpose.io.observations import frame_from_dict, frame_to_json
+from signpose.sim.crops import render_crop
+
+BAR_GRAY = 70  # a steel member: darker than the sky, lighter than the print's black
+
+
+def _crop_with_bar_over_slot(code: str, slot: int, rng, sign_px: float = 90.0):
+    """A clean crop with a wide dark bar laid tangentially over coded slot ``slot``.
+
+    The bar is 0.2 diameters wide (the slot is 0.16 radially) and runs past the
+    disc's rim on both sides, as a pylon member in front of the sign would.
+    """
+    crop = render_crop(code, rng, sign_px=sign_px, rotation_deg=25.0, background="plain")
+    theta = slot_angle_rad(slot)
+    radial = np.array([np.cos(theta), np.sin(theta)])
+    tangential = np.array([np.sin(theta), -np.cos(theta)])
+    centre = 0.3 * radial  # slot centre, diameter units (the crop's sign is 1 m across)
+    ends = apply_homography(crop.crop_H_sign, np.stack([centre - tangential, centre + tangential]))
+    width_px = 0.2 * sign_px
+    image = crop.image.copy()
+    p0, p1 = (tuple(int(round(v)) for v in p) for p in ends)
+    cv2.line(image, p0, p1, BAR_GRAY, int(round(width_px)), cv2.LINE_AA)
+    return crop, image
+
+
+def test_bar_over_a_white_slot_is_refused_when_another_map_code_fits():
+    """1011 with slot 1 hidden reads x011: with 0011 in the map it must not become 0011."""
+    crop, image = _crop_with_bar_over_slot("1011", 1, np.random.default_rng(3))
+    assert decode_roi(crop.image, ["1011", "0011"]).code == "1011"  # unhidden: read whole
+    res = decode_roi(image, ["1011", "0011", "0101"])
+    assert res.code is None
+    assert res.reason == DecodeReason.OCCLUDED
+
+
+def test_bar_over_a_white_slot_is_accepted_with_erased_slots_when_the_map_makes_it_unique():
+    crop, image = _crop_with_bar_over_slot("1011", 1, np.random.default_rng(3))
+    res = decode_roi(image, ["1011", "0101", "1110"])
+    assert res.code == "1011", res.reason
+    assert 1 in res.erased_slots
+    # The covered part's keypoint is dropped; the others stay accurate.
+    assert "slot1" not in res.keypoints_px
+    for name in ("center", "direction", "slot3"):
+        assert np.hypot(*np.subtract(res.keypoints_px[name], crop.keypoints_px[name])) < 0.5
+    assert set(res.keypoint_sigma_px) == set(res.keypoints_px)
+
+
+def test_without_a_map_any_erased_slot_is_refused():
+    _, image = _crop_with_bar_over_slot("1011", 1, np.random.default_rng(4))
+    res = decode_roi(image)  # all 16 codes allowed: x011 fits two of them
+    assert res.code is None and res.reason == DecodeReason.OCCLUDED
+
+
+def test_white_that_the_reading_does_not_explain_is_found():
+    """The 1110-read-as-1000 failure: two white slots the homography missed."""
+    crop = render_crop("1110", np.random.default_rng(5), sign_px=60, rotation_deg=40)
+    quads = sign_shape("1111", 1.0).white_parts
+    as_1110 = np.stack([quads[n] for n in ("center", "direction", "slot1", "slot2", "slot3")])
+    as_1000 = np.stack([quads[n] for n in ("center", "direction", "slot1")])
+    # The crop's sign is 1 m across, so its homography is in diameter units.
+    h = crop.crop_H_sign
+    black, white = 28.0, 232.0
+    assert not occlusion.unexplained_white(crop.image, h, as_1110, black, white, 0.035)
+    assert occlusion.unexplained_white(crop.image, h, as_1000, black, white, 0.035)
+
+
+def test_reason_tokens_are_the_file_tokens():
+    assert json.dumps(DecodeReason.CODE_NOT_IN_MAP) == '"code_not_in_map"'
+    assert "occluded" in REASONS and "inconsistent" in REASONS
+    assert DecodeReason("no_sign") is DecodeReason.NO_SIGN
+
+
+@pytest.mark.parametrize("erased", [(), (2,), (1, 4)])
+def test_observation_fields_round_trip(erased):
+    sign = SignObservation(
+        code="1011",
+        keypoints_px={"center": (10.0, 20.0), "direction": (11.0, 15.0)},
+        sigma_px=0.1,
+        erased_slots=erased,
+        keypoint_sigma_px={"center": (0.05, 0.07)} if erased else {},
+    )
+    obs = FrameObservations(0, 0, (64, 48), (sign,))
+    line = frame_to_json(obs)
+    assert ("erased_slots" in line) == bool(erased)  # old files stay as they were
+    back = frame_from_dict(json.loads(line)).signs[0]
+    assert back.erased_slots == erased
+    assert back.keypoint_sigma_px == sign.keypoint_sigma_px
+
+
+def test_bad_erased_slots_are_rejected():
+    d = {
+        "frame": 0,
+        "stamp_ns": 0,
+        "image_size": [8, 8],
+        "signs": [{"code": "0001", "keypoints_px": {"center": [1, 2]}, "erased_slots": [5]}],
+    }
+    with pytest.raises(ValueError, match="erased_slots"):
+        frame_from_dict(d)
