@@ -16,6 +16,11 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
 from signpose.estimator.perframe import FramePose, PerFrameSettings, PoseFailure, run_per_frame
+from signpose.estimator.projection import (
+    pixels_and_pose_jacobian,
+    pose_covariance,
+    position_cov_world,
+)
 from signpose.estimator.robust import (
     OutlierSettings,
     Rejection,
@@ -38,7 +43,13 @@ from signpose.estimator.smoother import (
     smooth_batch,
     smooth_isam2,
 )
-from signpose.estimator.status import PoseState, PoseStatus
+from signpose.estimator.status import (
+    PoseState,
+    PoseStatus,
+    StatusSettings,
+    classify,
+    worst_axis_sigma,
+)
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 
@@ -70,6 +81,7 @@ class EstimatorSettings:
             1.5 m along the weakly observed lateral/rotation direction in our
             tests (30 deg lens, 6-7 signs per frame). They stay in the report.
         outliers: the innovation test against the neighbours' prediction.
+        status: when a pose is ``weak`` or ``suspect``.
         final_kernel: the kernel of the final solve after the Huber rounds:
             ``"tukey"`` (redescending), ``"gnc"`` (truncated least squares by
             graduated non-convexity) or ``"huber"`` (no final solve). Tukey:
@@ -86,6 +98,7 @@ class EstimatorSettings:
     misdecode_ratio: float = 5.0
     gate_px: float = 30.0
     outliers: OutlierSettings = field(default_factory=OutlierSettings)
+    status: StatusSettings = field(default_factory=StatusSettings)
     final_kernel: str = TUKEY
 
     def to_dict(self) -> dict:
@@ -197,16 +210,34 @@ class EstimateResult:
     timing_s: dict[str, float]
 
 
-def _from_frame_poses(name: str, stamps: np.ndarray, poses: list[FramePose]) -> MethodEstimate:
+# A per-frame pose spends six of its residuals' degrees of freedom on itself.
+POSE_DOF = 6
+
+
+def _position_sigmas(cov6: np.ndarray | None, world_T_cam: np.ndarray) -> np.ndarray:
+    """(3,) world-axis position sigmas [m] of a pose covariance (NaN without one)."""
+    if cov6 is None:
+        return np.full(3, np.nan)
+    c = position_cov_world(cov6, world_T_cam[:3, :3])
+    return np.sqrt(np.maximum(np.diag(c), 0.0))
+
+
+def _from_frame_poses(
+    name: str, stamps: np.ndarray, poses: list[FramePose], st: StatusSettings
+) -> MethodEstimate:
     n = len(poses)
     T = np.tile(np.eye(4), (n, 1, 1))
     valid = np.zeros(n, bool)
+    sigma = np.full((n, 3), np.nan)
     status: list[PoseState] = []
     for i, p in enumerate(poses):
         if p.world_T_cam is not None and np.all(np.isfinite(p.world_T_cam)):
             T[i] = p.world_T_cam
             valid[i] = True
-            status.append(PoseStatus.OK)
+            sigma[i] = _position_sigmas(p.cov6, p.world_T_cam)
+            worst = worst_axis_sigma(p.cov6, p.world_T_cam[:3, :3])
+            dof = max(2 * p.keypoints_used - POSE_DOF, 0)
+            status.append(classify(p.keypoints_used, worst, p.chi2, dof, st))
         else:
             status.append(p.reason or PoseFailure.NONFINITE)
     return MethodEstimate(
@@ -214,19 +245,47 @@ def _from_frame_poses(name: str, stamps: np.ndarray, poses: list[FramePose]) -> 
         stamps_s=stamps,
         world_T_cam=T,
         valid=valid,
-        sigma_xyz=np.full((n, 3), np.nan),
+        sigma_xyz=sigma,
         signs_used=np.array([p.signs_used for p in poses], dtype=np.int64),
         status=tuple(status),
     )
 
 
+def _smoothed_status(
+    kept: Measurements, r: SmootherResult, camera: CameraModel, st: StatusSettings
+) -> tuple[PoseStatus, ...]:
+    """Each smoothed pose's status from the measurements the final solve kept."""
+    order = np.argsort(kept.frame, kind="stable")
+    starts = np.searchsorted(kept.frame[order], np.arange(kept.n_frames + 1))
+    out = []
+    for i in range(kept.n_frames):
+        ids = order[starts[i] : starts[i + 1]]
+        if len(ids) == 0:
+            out.append(PoseStatus.BRIDGED)
+            continue
+        T = r.world_T_cam[i]
+        world = r.landmarks_world[kept.landmark[ids]]
+        uv, _, _ = pixels_and_pose_jacobian(camera, T, world)
+        chi2 = float(np.sum(((kept.px[ids] - uv) / kept.sigma_px[ids, None]) ** 2))
+        sigma_m = kept.landmark_sigma_m[kept.landmark[ids]]
+        cov = pose_covariance(camera, T, world, kept.sigma_px[ids], sigma_m)
+        worst = worst_axis_sigma(cov, T[:3, :3])
+        out.append(classify(len(ids), worst, chi2, 2 * len(ids), st))
+    return tuple(out)
+
+
 def _from_smoother(
-    name: str, stamps: np.ndarray, r: SmootherResult, causal: bool = False
+    name: str,
+    stamps: np.ndarray,
+    r: SmootherResult,
+    causal: bool = False,
+    status: tuple[PoseStatus, ...] | None = None,
 ) -> MethodEstimate:
     T = r.causal_world_T_cam if causal else r.world_T_cam
     valid = np.all(np.isfinite(T.reshape(len(T), -1)), axis=1)
     T = np.where(valid[:, None, None], T, np.eye(4))
-    status = tuple(PoseStatus.OK if o else PoseStatus.BRIDGED for o in r.observed)
+    if status is None:
+        status = tuple(PoseStatus.OK if o else PoseStatus.BRIDGED for o in r.observed)
     sigma = np.full_like(r.sigma_xyz, np.nan) if causal else r.sigma_xyz
     return MethodEstimate(
         name=name,
@@ -440,7 +499,10 @@ def _innovation_rounds(
 def _final_solve(
     p: _Problem, r: SmootherResult, active: np.ndarray
 ) -> tuple[SmootherResult, list[Rejection]]:
-    """The final solve with the kernel that removes outliers outright (GNC or Tukey)."""
+    """The final solve with the kernel that removes outliers outright (GNC or Tukey).
+
+    Clears ``active`` for the measurements it removes.
+    """
     kernel = p.s.final_kernel
     if kernel == HUBER:
         return r, []
@@ -453,6 +515,7 @@ def _final_solve(
         out, test, threshold = r.weights < 0.5, RejectionTest.GNC, smoother.gnc_chi2
     else:
         out, test, threshold = chi2 > smoother.tukey_k**2, RejectionTest.TUKEY, smoother.tukey_k**2
+    active[ids[out]] = False
     return r, _rejections(p.meas, p.frames, ids[out], test, chi2[out], threshold)
 
 
@@ -501,7 +564,8 @@ def _smoothed(
     r, by_innovation = _innovation_rounds(p, r, active)
     r, by_kernel = _final_solve(p, r, active)
     timing = {"smoothed": time.perf_counter() - t0, "sigmas": r.sigma_seconds}
-    methods = {"smoothed": _from_smoother("smoothed", stamps, r)}
+    status = _smoothed_status(_subset(meas, active), r, camera, s.status)
+    methods = {"smoothed": _from_smoother("smoothed", stamps, r, status=status)}
     if causal.causal_world_T_cam is not None:
         methods["causal"] = _from_smoother("causal", stamps, causal, causal=True)
     down, mis = _outliers(meas, r, frames, sign_map, camera, s, gated)
@@ -555,7 +619,7 @@ def estimate_trajectories(
             per_frame[name] = run_per_frame(frames, sign_map, camera, name, s.per_frame, progress)
             timing[name] = time.perf_counter() - t0
             if name in wanted:
-                methods[name] = _from_frame_poses(name, stamps, per_frame[name])
+                methods[name] = _from_frame_poses(name, stamps, per_frame[name], s.status)
     down: tuple[Outlier, ...] = ()
     mis: tuple[Misdecode, ...] = ()
     rejected_obs: tuple[Rejection, ...] = ()

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.estimator.projection import pose_covariance
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 from tqdm import tqdm
@@ -93,6 +94,11 @@ class FramePose:
         signs_used: number of distinct map signs that went into the solve.
         inlier_codes: codes of the signs kept (RANSAC inliers).
         rms_px: RMS reprojection error of the inliers [px] (NaN without pose).
+        cov6: (6, 6) covariance of the pose from its inlier keypoints alone
+            (inverse Fisher information with the pixel and survey noise;
+            gtsam's order [rotation, translation], camera frame), or None.
+        keypoints_used: number of inlier keypoints.
+        chi2: sum of the inliers' whitened squared residuals (NaN without pose).
     """
 
     frame: int
@@ -102,6 +108,9 @@ class FramePose:
     signs_used: int = 0
     inlier_codes: tuple[str, ...] = field(default_factory=tuple)
     rms_px: float = float("nan")
+    cov6: np.ndarray | None = None
+    keypoints_used: int = 0
+    chi2: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -110,13 +119,30 @@ class _Correspondences:
     names: list[str]
     world: np.ndarray  # (N, 3)
     px: np.ndarray  # (N, 2) undistorted pixels
+    sigma_px: np.ndarray  # (N,) pixel sigma of each point
+    sigma_m: np.ndarray  # (N,) survey sigma of each point [m]
+
+    def fit(self, camera: CameraModel, world_T_cam: np.ndarray, inliers: np.ndarray) -> dict:
+        """FramePose fields describing how well the inliers fix and fit the pose."""
+        err, _ = _reproject_errors(camera, world_T_cam, self.world[inliers], self.px[inliers])
+        return {
+            "cov6": pose_covariance(
+                camera,
+                world_T_cam,
+                self.world[inliers],
+                self.sigma_px[inliers],
+                self.sigma_m[inliers],
+            ),
+            "keypoints_used": int(inliers.sum()),
+            "chi2": float(np.sum((err / self.sigma_px[inliers]) ** 2)),
+        }
 
 
 def _correspondences(
     frame: FrameObservations, sign_map: SignMap, camera: CameraModel, all_keypoints: bool
 ) -> _Correspondences:
     """Undistorted image points matched to map points; codes absent from the map dropped."""
-    codes, names, world, raw = [], [], [], []
+    codes, names, world, raw, sig_px, sig_m = [], [], [], [], [], []
     for obs in frame.signs:
         sign = sign_map.sign(obs.code)
         if sign is None:  # robustness rule 1: decoded codes absent from the map
@@ -129,9 +155,13 @@ def _correspondences(
                 names.append(name)
                 world.append(X)
                 raw.append(obs.keypoints_px[name])
+                sig_px.append(obs.sigma_px)
+                sig_m.append(sign.sigma_m)
     world_a = np.asarray(world, dtype=float).reshape(-1, 3)
     px = undistort_px(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
-    return _Correspondences(codes, names, world_a, px)
+    return _Correspondences(
+        codes, names, world_a, px, np.asarray(sig_px, float), np.asarray(sig_m, float)
+    )
 
 
 def _spread(points: np.ndarray) -> np.ndarray:
@@ -330,6 +360,7 @@ def solve_frame_baseline(
         signs_used=len(used),
         inlier_codes=used,
         rms_px=rms,
+        **c.fit(camera, T, inliers),
     )
 
 
@@ -483,7 +514,7 @@ def solve_frame_pnp(
         if accept:
             T = _pose_from_rt(cv2.Rodrigues(warm[0])[0], warm[1].reshape(3))
             rms, _ = _reproject_rms(camera, T, c.world, c.px)
-            return posed(T, distinct, rms_px=rms)
+            return posed(T, distinct, rms_px=rms, **c.fit(camera, T, np.ones(len(c.world), bool)))
         if warm is not None:
             candidates.append(warm)
     cold, inliers = _cold_candidates(p, s)
@@ -491,7 +522,7 @@ def solve_frame_pnp(
     if best is None:
         return posed(None, distinct, reason=PoseFailure.PNP)
     used = tuple(sorted({code for code, ok in zip(c.codes, inliers, strict=True) if ok}))
-    return posed(best[0], used, rms_px=best[1])
+    return posed(best[0], used, rms_px=best[1], **c.fit(camera, best[0], inliers))
 
 
 def run_per_frame(

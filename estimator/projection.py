@@ -18,6 +18,9 @@ import numpy as np
 from signpose.estimator.camera import CameraModel
 
 MIN_DEPTH_M = 1e-9  # depths are clamped to this to keep points at the camera finite
+# Fisher information with a larger condition number leaves a direction unfixed
+# (three points on a line, or two points): no covariance then.
+MAX_CONDITION = 1e12
 
 
 def cam_points(world_T_cam: np.ndarray, world_p: np.ndarray) -> np.ndarray:
@@ -101,3 +104,38 @@ def chi2_quantile_even(p: float, dof: int) -> float:
         else:
             hi = mid
     return 0.5 * (lo + hi)
+
+
+def pose_covariance(
+    camera: CameraModel,
+    world_T_cam: np.ndarray,
+    world_p: np.ndarray,
+    sigma_px: np.ndarray,
+    sigma_m: np.ndarray,
+) -> np.ndarray | None:
+    """(6, 6) covariance of a pose fixed by its keypoints alone (inverse Fisher information).
+
+    Each keypoint's pixel covariance is the pixel noise plus the survey noise
+    of its world point seen through the projection: ``sigma_px^2 I +
+    sigma_m^2 J_p J_p^T``.
+
+    Args:
+        world_p: (K, 3) world points [m]; sigma_px: (K,) pixel sigmas;
+        sigma_m: (K,) survey sigmas [m].
+
+    Returns:
+        The covariance ([rotation, translation], camera frame), or None when
+        the keypoints do not fix all six degrees of freedom.
+    """
+    if len(world_p) < 3:
+        return None
+    _, J, J_point = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
+    sp = np.asarray(sigma_px, float).reshape(-1)
+    sm = np.asarray(sigma_m, float).reshape(-1)
+    C = sp[:, None, None] ** 2 * np.eye(2) + sm[:, None, None] ** 2 * J_point @ J_point.transpose(
+        0, 2, 1
+    )
+    info = np.einsum("kai,kab,kbj->ij", J, np.linalg.inv(C), J)
+    if np.linalg.cond(info) > MAX_CONDITION:
+        return None
+    return np.linalg.inv(info)

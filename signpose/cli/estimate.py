@@ -11,7 +11,7 @@ from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
 from signpose.io.camera_file import load_camera
 from signpose.io.observations import read_observations
-from signpose.io.results import write_outputs
+from signpose.io.results import status_line, write_outputs
 from signpose.maps.loader import load_map
 
 
@@ -79,5 +79,6 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         for name, m in result.methods.items():
             print(f"{name}: {int(m.valid.sum())}/{len(m.valid)} frames posed")
+        print(status_line(result))
         print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

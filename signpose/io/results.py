@@ -101,6 +101,32 @@ def _csv_text(result: EstimateResult) -> str:
     return buf.getvalue()
 
 
+def status_shares(m: MethodEstimate) -> dict[str, float]:
+    """Share of frames with each status or failure token, in PoseStatus order first."""
+    n = max(len(m.status), 1)
+    tokens = [st.value for st in m.status]
+    order = [st.value for st in PoseStatus] + sorted(set(tokens) - {st.value for st in PoseStatus})
+    return {t: tokens.count(t) / n for t in order if t in tokens or t in ("ok", "weak")}
+
+
+def _weak_poses(result: EstimateResult, m: MethodEstimate) -> list[dict]:
+    """Frame and worst-axis sigma of each weak pose (the sigma is null when not computed)."""
+    return [
+        {"frame": int(result.frames[i]), "worst_sigma_m": float(np.max(m.sigma_xyz[i]))}
+        for i, st in enumerate(m.status)
+        if st is PoseStatus.WEAK
+    ][:MAX_LISTED_OUTLIERS]
+
+
+def status_line(result: EstimateResult) -> str:
+    """One line: each method's share of ok / weak / bridged / suspect poses."""
+    parts = []
+    for name, m in result.methods.items():
+        shares = status_shares(m)
+        parts.append(f"{name} " + " ".join(f"{k} {100 * v:.1f}%" for k, v in shares.items()))
+    return "status: " + "; ".join(parts)
+
+
 def report_dict(result: EstimateResult) -> dict:
     """The content of report.json (before any metrics are added)."""
     n = len(result.frames)
@@ -113,6 +139,8 @@ def report_dict(result: EstimateResult) -> dict:
             "coverage": float(m.valid.mean()) if n else 0.0,
             "coverage_of_frames_with_signs": float(m.valid[seen].mean()) if seen.any() else None,
             "bridged": int(sum(s is PoseStatus.BRIDGED for s in m.status)),
+            "status": status_shares(m),
+            "weak": _weak_poses(result, m),
         }
     o = result.outliers.to_dict()
     o["n_downweighted"] = len(o["downweighted"])
