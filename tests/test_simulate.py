@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import clean_sim_options, white_centroid_px
 from signpose.estimator.camera import pixel_from_world_point
-from signpose.frontend.sign import LOCATION_SIDE_R, all_slot_keypoints
+from signpose.frontend.sign import LOCATION_SIDE_R, all_slot_keypoints, fill_polygon_aa
 from signpose.maps.loader import load_map
 
 from signpose.cli import main
@@ -24,6 +24,7 @@ from signpose.io.boxes import (
 from signpose.io.camera_file import load_camera
 from signpose.io.frames_csv import FrameStamp, read_frames_csv, write_frames_csv
 from signpose.io.tum import read_tum
+from signpose.sim import scene as scene_module
 from signpose.sim.flight import (
     FORMATS,
     SimSettings,
@@ -33,6 +34,8 @@ from signpose.sim.flight import (
     simulated_camera,
 )
 from signpose.sim.frame import render_frame
+from signpose.sim.photos import available_photos
+from signpose.sim.pylon import LATTICE_BGR
 from signpose.sim.render import SIGN_BLACK, SIGN_WHITE, line_kernel
 from signpose.sim.scene import SceneOptions, build_scene
 from signpose.sim.trajectories import make_trajectory
@@ -416,3 +419,101 @@ def test_boxes_round_trip_keeps_every_field(tmp_path):
     (tmp_path / "bad.jsonl").write_text("{not json\n", encoding="utf-8")
     with pytest.raises(InputError, match="line 1"):
         read_boxes(tmp_path / "bad.jsonl")
+
+
+def _slot_means(image, camera, pose, sign):
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(float)
+    out = {}
+    for name, poly_m in sign.parts_m.items():
+        mask = np.zeros(gray.shape, float)
+        fill_polygon_aa(mask, pixel_from_world_point(camera, pose, poly_m)[0], 1.0, 4)
+        out[name] = (float((mask * gray).sum() / mask.sum()), float(mask.sum()))
+    return out
+
+
+def test_members_in_front_mark_the_slots_they_cover_and_darken_them(demo_map):
+    """The covered-part truth against the pixels: a member over part p darkens it by its share."""
+    camera = simulated_camera(SimSettings())
+    options = SceneOptions(background=False, members=1.0)
+    scene = build_scene(demo_map, camera, seed=1, options=options)
+    assert len(scene.members) == len(demo_map.signs)
+    bare = replace(scene, members=())
+    traj = make_trajectory("orbit", demo_map, 60, 30.0)
+    member_grey = float(np.mean(LATTICE_BGR))  # a grey: B, G and R nearly equal
+    checked = covered = 0
+    for pose in traj.world_T_cam()[::12]:
+        image, truths = render_frame(
+            scene, pose, np.random.default_rng(0), options=clean_sim_options()
+        )
+        clean, _ = render_frame(bare, pose, np.random.default_rng(0), options=clean_sim_options())
+        for t in truths:
+            if t.truncated:
+                continue
+            sign = next(s for s in scene.signs if s.code == t.code)
+            before = _slot_means(clean, camera, pose, sign)
+            after = _slot_means(image, camera, pose, sign)
+            for k in range(1, 5):
+                assert (k in t.covered_slots) == (t.part_cover[f"slot{k}"] >= 0.2)
+            for name, share in t.part_cover.items():
+                (mean_before, area_px), (mean_after, _) = before[name], after[name]
+                if area_px < 40:
+                    continue  # anti-aliased edges dominate a part this small
+                expected = share * (mean_before - member_grey)
+                assert mean_before - mean_after == pytest.approx(expected, abs=8.0), name
+                checked += 1
+            covered += len(t.covered_slots)
+            assert ("member" in t.occluders) == t.occluded
+    assert checked > 100 and covered > 3
+
+
+def test_real_pylon_conditions_are_recorded(demo_map, tmp_path):
+    settings = replace(
+        SimSettings(frames=12, width=480, height=270, hfov_deg=20.0, format="png").hard(),
+        vibration=5.0,
+        exposure_steps=3.0,
+        faded=1.0,
+        glare=1.0,
+    )
+    res = simulate(demo_map, tmp_path / "hard", settings, progress=False)
+    frames = read_frame_truths(res.boxes_path)
+    qualities = {f.conditions.jpeg_quality for f in frames}
+    assert qualities <= set(range(70, 91)) and len(qualities) > 1
+    assert any(np.hypot(*f.conditions.vibration_px) > 0 for f in frames)
+    assert any(f.conditions.vibration_px == (0.0, 0.0) for f in frames)
+    lighting = [lighting_at(i / settings.fps, settings.seed)[0] for i in range(len(frames))]
+    assert (
+        max(abs(f.conditions.gain / g - 1.0) for f, g in zip(frames, lighting, strict=True)) > 0.05
+    )
+    signs = [s for f in frames for s in f.signs]
+    assert all(0.15 <= s.fade <= 0.5 for s in signs) and any(s.dirty for s in signs)
+    assert any(s.glare_dn > 0 for s in signs)
+    if available_photos():
+        assert frames[0].conditions.background.startswith("photo:")
+    assert any(
+        isinstance(ln.widths_m, np.ndarray)
+        for ln in build_scene(demo_map, res.camera, options=settings.scene_options()).lines_behind
+    )
+
+
+def test_photo_backgrounds_fall_back_to_procedural(demo_map, monkeypatch):
+    camera = simulated_camera(SMALL)
+    monkeypatch.setattr(scene_module, "available_photos", lambda names=(): ())
+    scene = build_scene(demo_map, camera, options=SceneOptions(photo=True))
+    assert scene.background == "procedural"
+    image, _ = render_frame(
+        scene,
+        make_trajectory("orbit", demo_map, 5, 30.0).world_T_cam()[2],
+        np.random.default_rng(0),
+    )
+    assert image.shape == (270, 480, 3)
+
+
+def test_bad_condition_settings_raise_input_error(demo_map, tmp_path):
+    for bad in (
+        SimSettings(members=1.5),
+        SimSettings(conductors=-1),
+        SimSettings(jpeg_range=(90, 70)),
+        SimSettings(vibration=-0.1),
+    ):
+        with pytest.raises(InputError):
+            bad.validate()

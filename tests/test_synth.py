@@ -3,9 +3,11 @@
 import numpy as np
 import pytest
 from signpose.frontend.homography import apply_homography, fit_homography
-from signpose.frontend.sign import ALL_CODES, sign_keypoints
+from signpose.frontend.sign import ALL_CODES, fill_polygon_aa, sign_keypoints
 
 from signpose.core.errors import InputError
+from signpose.sim import crops, photos
+from signpose.sim.crop_occluders import CropOccluder, part_polygons_px
 from signpose.sim.crops import BACKGROUNDS, render_background, render_crop
 
 
@@ -70,3 +72,82 @@ def test_unknown_inputs_raise():
     with pytest.raises(InputError):  # from the sign module
         render_crop("0102", np.random.default_rng(0), sign_px=30)
     assert len(ALL_CODES) == 16
+
+
+def _mean_in(image: np.ndarray, polygon_px: np.ndarray) -> float:
+    mask = np.zeros(image.shape, float)
+    fill_polygon_aa(mask, polygon_px, 1.0, 4)
+    return float((mask * image).sum() / mask.sum())
+
+
+@pytest.mark.parametrize("slot", [1, 2, 3, 4])
+def test_a_member_over_slot_k_marks_it_covered_and_darkens_it(slot):
+    kw = dict(sign_px=80, rotation_deg=17, tilt_deg=25, psf_sigma_px=0.0)
+    member = CropOccluder("member", through=f"slot{slot}", width_px=14.0, value=60.0)
+    clean = render_crop("1111", np.random.default_rng(3), **kw)
+    crossed = render_crop("1111", np.random.default_rng(3), occluders=(member,), **kw)
+    assert clean.covered_slots == () and clean.occluders == ()
+    assert slot in crossed.covered_slots
+    assert crossed.occluders == ("member",)
+    assert crossed.part_cover[f"slot{slot}"] > 0.5
+    for k in range(1, 5):
+        assert (k in crossed.covered_slots) == (crossed.part_cover[f"slot{k}"] >= 0.2)
+    parts = part_polygons_px(crossed.crop_H_sign, crossed.diameter_m)
+    for name, poly in parts.items():
+        before = _mean_in(clean.image.astype(float), poly)
+        after = _mean_in(crossed.image.astype(float), poly)
+        # The grey level drops by the covered share of (white - member grey).
+        expected = crossed.part_cover[name] * (before - 60.0)
+        assert before - after == pytest.approx(expected, abs=12.0), name
+    assert crossed.conditions["occluders"][0]["kind"] == "member"
+
+
+def test_a_black_slot_counts_as_covered_too():
+    member = CropOccluder("member", through="slot3", width_px=12.0)
+    crop = render_crop("0000", np.random.default_rng(0), sign_px=60, occluders=(member,))
+    assert 3 in crop.covered_slots
+
+
+def test_random_occluders_and_conditions_are_recorded():
+    crop = render_crop(
+        "1010",
+        np.random.default_rng(4),
+        sign_px=60,
+        power_line=True,
+        member=True,
+        insulator=True,
+        fade=0.4,
+        glare_dn=100.0,
+        jpeg_quality=75,
+    )
+    assert crop.occluders == ("conductor", "member", "insulator")
+    assert [o["kind"] for o in crop.conditions["occluders"]] == list(crop.occluders)
+    assert crop.conditions["power_line"]["width_px"] == crop.conditions["occluders"][0]["width_px"]
+    assert crop.conditions["fade"] == 0.4 and crop.conditions["jpeg_quality"] == 75
+    assert set(crop.part_cover) == {"center", "direction", "slot1", "slot2", "slot3", "slot4"}
+    with pytest.raises(ValueError, match="occluder"):
+        render_crop("1010", np.random.default_rng(0), occluders=(CropOccluder("bird"),))
+
+
+def test_fading_lowers_and_glare_raises_the_face():
+    kw = dict(sign_px=70, psf_sigma_px=0.0)
+    fresh = render_crop("1111", np.random.default_rng(5), **kw)
+    faded = render_crop("1111", np.random.default_rng(5), fade=0.5, **kw)
+    glared = render_crop("1111", np.random.default_rng(5), glare_dn=150.0, **kw)
+    parts = part_polygons_px(fresh.crop_H_sign, fresh.diameter_m)
+    white = _mean_in(fresh.image.astype(float), parts["slot1"])
+    assert _mean_in(faded.image.astype(float), parts["slot1"]) < white - 30
+    disc = np.zeros(fresh.image.shape, bool)
+    (cx, cy), (a, _), _ = fresh.ellipse
+    yy, xx = np.mgrid[: disc.shape[0], : disc.shape[1]]
+    disc = np.hypot(xx - cx, yy - cy) < 0.45 * a
+    assert glared.image[disc].astype(float).sum() > fresh.image[disc].astype(float).sum()
+
+
+def test_photo_background_falls_back_without_photographs(monkeypatch):
+    crop = render_crop("0101", np.random.default_rng(0), sign_px=40, background="photo")
+    if photos.available_photos():
+        assert crop.conditions["background"].startswith("photo:")
+    monkeypatch.setattr(crops, "available_photos", lambda: ())
+    crop = render_crop("0101", np.random.default_rng(0), sign_px=40, background="photo")
+    assert crop.conditions["background"] == "clutter"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 from signpose.cli import add_quiet
@@ -43,8 +44,49 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--occlusion", action="store_true", help="bars in front of some sign faces")
     p.add_argument("--no-blur", action="store_true", help="no motion blur")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise, no JPEG round trip")
+    g = p.add_argument_group("real-pylon conditions (recorded in boxes.jsonl)")
+    g.add_argument(
+        "--hard",
+        action="store_true",
+        help="every condition below on at realistic rates (the options below override it)",
+    )
+    g.add_argument("--members", type=float, default=None, help="share of signs crossed by a member")
+    g.add_argument("--conductors", type=int, default=None, help="extra conductors in front")
+    g.add_argument("--insulators", action="store_true", default=None, help="insulator strings")
+    g.add_argument("--faded", type=float, default=None, help="share of faces with faded paint")
+    g.add_argument("--glare", type=float, default=None, help="share of faces with specular glare")
+    g.add_argument("--photo", action="store_true", default=None, help="photographs as backgrounds")
+    g.add_argument(
+        "--jpeg-range", type=_quality_range, default=None, help="per-frame JPEG quality LO,HI"
+    )
+    g.add_argument("--vibration", type=float, default=None, help="vibration blur bursts per s")
+    g.add_argument(
+        "--exposure-steps", type=float, default=None, help="auto-exposure gain steps per s"
+    )
     add_quiet(p)
     p.set_defaults(func=run)
+
+
+CONDITION_OPTIONS = (
+    "members",
+    "conductors",
+    "insulators",
+    "faded",
+    "glare",
+    "photo",
+    "jpeg_range",
+    "vibration",
+    "exposure_steps",
+)
+
+
+def _quality_range(text: str) -> tuple[int, int]:
+    """argparse type for ``--jpeg-range 70,90``."""
+    try:
+        lo, hi = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LO,HI such as 70,90, got {text!r}") from None
+    return lo, hi
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,7 +106,11 @@ def run(args: argparse.Namespace) -> int:
         blur=not args.no_blur,
         noise_sigma=0.0 if args.no_noise else SimSettings.noise_sigma,
         jpeg_quality=None if args.no_noise else SimSettings.jpeg_quality,
-    ).validate()
+    )
+    if args.hard:
+        settings = settings.hard()
+    given = {k: getattr(args, k) for k in CONDITION_OPTIONS if getattr(args, k) is not None}
+    settings = replace(settings, **given).validate()
     result = simulate(sign_map, args.out, settings, progress=not args.quiet)
     print(
         f"simulated {result.n_frames} frames ({settings.trajectory}, seed {settings.seed}) "

@@ -32,8 +32,22 @@ import numpy as np
 
 from signpose.frontend.homography import Ellipse, apply_homography, disc_ellipse
 from signpose.frontend.sign import fill_polygon_aa, sign_keypoints, sign_shape, validate_code
+from signpose.sim.crop_occluders import (
+    Band,
+    CropOccluder,
+    bar,
+    coverage,
+    draw_band,
+    line_through,
+    part_polygons_px,
+    place,
+)
+from signpose.sim.photos import available_photos, load_photo
 
 BACKGROUNDS: tuple[str, ...] = ("plain", "sky", "lattice", "lines", "ground", "clutter")
+# A real photograph (``signpose.sim.photos``); "clutter" when scikit-image is missing.
+PHOTO_BACKGROUND = "photo"
+PHOTO_FALLBACK = "clutter"
 
 # Gray levels of the printed face before exposure (contrast/brightness).
 BLACK_LEVEL = 28.0
@@ -59,6 +73,11 @@ class SynthCrop:
             pixels (u, v, 1); the sign's diameter is ``diameter_m``.
         diameter_m: disc diameter used for the geometry [m].
         conditions: the rendering parameters (for tables and debugging).
+        covered_slots: coded slots (1..4, white or black) whose area the
+            occluders cover by >= ``signpose.io.boxes.COVERED_FRACTION``.
+        part_cover: part name (``center``, ``direction``, ``slot1``..``slot4``)
+            -> covered share of its area (0 for every part without occluders).
+        occluders: kinds of the occluders drawn (``crop_occluders.OCCLUDER_KINDS``).
     """
 
     image: np.ndarray
@@ -69,6 +88,9 @@ class SynthCrop:
     crop_H_sign: np.ndarray
     diameter_m: float = 1.0
     conditions: dict = field(default_factory=dict)
+    covered_slots: tuple[int, ...] = ()
+    part_cover: dict[str, float] = field(default_factory=dict)
+    occluders: tuple[str, ...] = ()
 
 
 def _rodrigues(axis: np.ndarray, angle_rad: float) -> np.ndarray:
@@ -120,25 +142,6 @@ def _gradient(rng: np.random.Generator, h: int, w: int, lo: float, hi: float) ->
     return lo + (hi - lo) * t
 
 
-def _bar(image: np.ndarray, p0, p1, width: float, value: float) -> None:
-    """Draw a straight bar of ``width`` px from p0 to p1 (anti-aliased)."""
-    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-    d = p1 - p0
-    n = np.array([-d[1], d[0]]) / max(np.hypot(*d), 1e-9) * width / 2
-    fill_polygon_aa(image, np.array([p0 + n, p1 + n, p1 - n, p0 - n]), value, supersample=4)
-
-
-def _line_through(rng: np.random.Generator, h: int, w: int, point=None, angle=None):
-    """End points of a line crossing the whole (h, w) image."""
-    if point is None:
-        point = (rng.uniform(0, w), rng.uniform(0, h))
-    if angle is None:
-        angle = rng.uniform(0, math.pi)
-    d = np.array([math.cos(angle), math.sin(angle)]) * 2 * (h + w)
-    p = np.asarray(point, float)
-    return p - d, p + d
-
-
 def _background_float(rng: np.random.Generator, h: int, w: int, kind: str) -> np.ndarray:
     if kind == "plain":
         return np.full((h, w), rng.uniform(80, 210)) + _gradient(rng, h, w, -10, 10)
@@ -154,7 +157,7 @@ def _background_float(rng: np.random.Generator, h: int, w: int, kind: str) -> np
             angle = base + family * rng.uniform(0.5, 1.3)
             width = rng.uniform(0.03, 0.09) * s
             for _ in range(rng.integers(1, 3)):
-                _bar(img, *_line_through(rng, h, w, angle=angle), width, steel)
+                bar(img, *line_through(rng, h, w, angle=angle), width, steel)
         return img
     if kind == "lines":
         img = _background_float(rng, h, w, "sky")
@@ -164,9 +167,9 @@ def _background_float(rng: np.random.Generator, h: int, w: int, kind: str) -> np
         for _ in range(rng.integers(2, 6)):
             offset = rng.uniform(-0.6, 0.6) * max(h, w)
             p = centre + offset * normal
-            _bar(
+            bar(
                 img,
-                *_line_through(rng, h, w, point=p, angle=angle + rng.normal(0, 0.03)),
+                *line_through(rng, h, w, point=p, angle=angle + rng.normal(0, 0.03)),
                 rng.uniform(0.8, 3.0),
                 rng.uniform(30, 90),
             )
@@ -215,7 +218,7 @@ def _motion_kernel(length_px: float, angle_rad: float) -> np.ndarray:
     k = np.zeros((size, size))
     d = np.array([math.cos(angle_rad), math.sin(angle_rad)]) * length_px / 2
     c = np.array([half, half], float)
-    _bar(k, c - d, c + d, 1.0, 1.0)
+    bar(k, c - d, c + d, 1.0, 1.0)
     return k / k.sum()
 
 
@@ -257,26 +260,86 @@ def _add_dirt(rng: np.random.Generator, img: np.ndarray, centre, radius_px: floa
 
 
 def _draw_face(
-    img: np.ndarray, code: str, crop_H_sign: np.ndarray, diameter_m: float, supersample: int
+    img: np.ndarray,
+    code: str,
+    crop_H_sign: np.ndarray,
+    diameter_m: float,
+    supersample: int,
+    fade: float = 0.0,
 ) -> None:
-    """Paint the black disc and the white parts of ``code`` into float ``img`` (in place)."""
+    """Paint the black disc and the white parts of ``code`` into float ``img`` (in place).
+
+    ``fade`` > 0 pulls both paints toward their mean grey (weathered paint).
+    """
+    black, white = BLACK_LEVEL, WHITE_LEVEL
+    if fade > 0:
+        grey = 0.5 * (black + white)
+        black, white = black + fade * (grey - black), white + fade * (grey - white)
     shape = sign_shape(code, diameter_m)
-    fill_polygon_aa(img, apply_homography(crop_H_sign, shape.disc), BLACK_LEVEL, supersample)
+    fill_polygon_aa(img, apply_homography(crop_H_sign, shape.disc), black, supersample)
     for corners in shape.white_parts.values():
-        fill_polygon_aa(img, apply_homography(crop_H_sign, corners), WHITE_LEVEL, supersample)
+        fill_polygon_aa(img, apply_homography(crop_H_sign, corners), white, supersample)
 
 
-def _add_power_line(
-    rng: np.random.Generator, img: np.ndarray, ellipse: Ellipse, sign_px: float
-) -> dict:
-    """Draw a dark conductor across the sign (in place); return its angle and width."""
-    side = img.shape[0]
-    angle = rng.uniform(0, math.pi)
-    through = np.asarray(ellipse[0]) + rng.uniform(-0.3, 0.3, size=2) * sign_px
-    width = rng.uniform(0.8, 2.0) * max(1.0, sign_px / 60.0)
-    value = rng.uniform(20, 80)
-    _bar(img, *_line_through(rng, side, side, point=through, angle=angle), width, value)
-    return {"angle_deg": math.degrees(angle), "width_px": width}
+def _add_glare(
+    rng: np.random.Generator,
+    img: np.ndarray,
+    crop_H_sign: np.ndarray,
+    diameter_m: float,
+    sign_px: float,
+    peak_dn: float,
+) -> None:
+    """Add a Gaussian specular highlight of ``peak_dn`` on the face (in place)."""
+    centre = apply_homography(crop_H_sign, np.zeros((1, 2)))[0]
+    centre = centre + rng.uniform(-0.3, 0.3, size=2) * sign_px
+    sigma = rng.uniform(0.1, 0.25) * sign_px
+    disc = np.zeros_like(img)
+    fill_polygon_aa(disc, apply_homography(crop_H_sign, sign_shape("0000", diameter_m).disc), 1.0)
+    v, u = np.mgrid[0 : img.shape[0], 0 : img.shape[1]]
+    r2 = ((u - centre[0]) ** 2 + (v - centre[1]) ** 2) / sigma**2
+    img += disc * peak_dn * np.exp(-0.5 * r2)
+
+
+def _photo_background(rng: np.random.Generator, h: int, w: int) -> tuple[np.ndarray, str] | None:
+    """(h, w) float grey cut of a random photograph and ``photo:<name>``, None without any."""
+    names = available_photos()
+    if not names:
+        return None
+    name = names[int(rng.integers(len(names)))]
+    gray = cv2.cvtColor(load_photo(name), cv2.COLOR_BGR2GRAY)
+    side = int(rng.uniform(0.25, 1.0) * min(gray.shape))
+    y = int(rng.integers(0, gray.shape[0] - side + 1))
+    x = int(rng.integers(0, gray.shape[1] - side + 1))
+    cut = cv2.resize(gray[y : y + side, x : x + side], (w, h), interpolation=cv2.INTER_AREA)
+    return cut.astype(np.float64), f"photo:{name}"
+
+
+def _background(rng: np.random.Generator, side: int, kind: str) -> tuple[np.ndarray, str]:
+    """The crop's float background and what it shows (``kind`` or ``photo:<name>``)."""
+    if kind == PHOTO_BACKGROUND:
+        photo = _photo_background(rng, side, side)
+        if photo is not None:
+            return photo
+        kind = PHOTO_FALLBACK
+    return _background_float(rng, side, side, kind), kind
+
+
+def _occluders(settings: CropSettings) -> tuple[CropOccluder, ...]:
+    """Every occluder the settings ask for, in drawing order (power line first)."""
+    out = [CropOccluder("conductor")] if settings.power_line else []
+    out += list(settings.occluders)
+    if settings.member:
+        out.append(CropOccluder("member"))
+    if settings.insulator:
+        out.append(CropOccluder("insulator"))
+    return tuple(out)
+
+
+def _jpeg(image: np.ndarray, quality: int | None) -> np.ndarray:
+    if quality is None:
+        return image
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    return cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE) if ok else image
 
 
 @dataclass(frozen=True)
@@ -325,6 +388,17 @@ class CropSettings:
         psf_sigma_px: Gaussian optics blur always applied [px].
         offset_px: shift of the sign centre from the crop centre [px].
         supersample: sub-samples per pixel side for the polygon fill.
+        occluders: bands in front of the sign (``crop_occluders.CropOccluder``),
+            drawn after the power line.
+        member: add one lattice member at a random place and angle.
+        insulator: add one insulator string at a random place and angle.
+        fade: pull the black and white paint toward their mean grey by this share.
+        glare_dn: peak of a specular highlight on the face [grey levels], 0 = none.
+        jpeg_quality: JPEG round trip of the crop (1..100), None = none.
+
+    ``background`` may also be ``PHOTO_BACKGROUND`` ("photo"): a cut of a real
+    photograph, or ``PHOTO_FALLBACK`` when scikit-image is not installed
+    (``conditions["background"]`` says which).
     """
 
     sign_px: float = 48.0
@@ -344,14 +418,27 @@ class CropSettings:
     psf_sigma_px: float = 0.4
     offset_px: tuple[float, float] = (0.0, 0.0)
     supersample: int = 8
+    occluders: tuple[CropOccluder, ...] = ()
+    member: bool = False
+    insulator: bool = False
+    fade: float = 0.0
+    glare_dn: float = 0.0
+    jpeg_quality: int | None = None
 
     def side_px(self) -> int:
         if self.out_px is not None:
             return int(self.out_px)
         return int(math.ceil(self.sign_px * (1 + 2 * self.margin)))
 
-    def conditions(self, blur_angle: float, line: dict | None) -> dict:
-        """The rendering parameters as ``SynthCrop.conditions`` reports them."""
+    def conditions(self, blur_angle: float, bands: tuple[Band, ...], background: str) -> dict:
+        """The rendering parameters as ``SynthCrop.conditions`` reports them.
+
+        ``power_line`` keeps its old form ({angle_deg, width_px} or None);
+        ``occluders`` lists every band drawn (kind, angle_deg, width_px, value).
+        """
+        line = None
+        if self.power_line:
+            line = {"angle_deg": math.degrees(bands[0].angle_rad), "width_px": bands[0].width_px}
         return {
             "sign_px": float(self.sign_px),
             "out_px": self.side_px(),
@@ -363,7 +450,11 @@ class CropSettings:
             "noise_sigma": float(self.noise_sigma),
             "dirt": bool(self.dirt),
             "power_line": line,
-            "background": self.background,
+            "occluders": [b.to_json() for b in bands],
+            "background": background,
+            "fade": float(self.fade),
+            "glare_dn": float(self.glare_dn),
+            "jpeg_quality": self.jpeg_quality,
             "contrast": float(self.contrast),
             "brightness": float(self.brightness),
             "focal_px": float(self.focal_px),
@@ -388,9 +479,10 @@ def render_crop(
     """
     validate_code(code)
     s = replace(settings or CropSettings(), **options)
-    if s.background not in BACKGROUNDS:
+    if s.background not in (*BACKGROUNDS, PHOTO_BACKGROUND):
         raise ValueError(
-            f"unknown background {s.background!r}: use one of {', '.join(BACKGROUNDS)}"
+            f"unknown background {s.background!r}: use one of "
+            f"{', '.join((*BACKGROUNDS, PHOTO_BACKGROUND))}"
         )
     side = s.side_px()
     diameter_m = 1.0
@@ -402,17 +494,23 @@ def render_crop(
     crop_H_sign = crop_homography(
         s.sign_px, s.rotation_deg, s.tilt_deg, s.tilt_axis_deg, principal, s.focal_px, diameter_m
     )
-    img = _background_float(rng, side, side, s.background)
-    _draw_face(img, code, crop_H_sign, diameter_m, s.supersample)
+    img, background = _background(rng, side, s.background)
+    _draw_face(img, code, crop_H_sign, diameter_m, s.supersample, s.fade)
+    if s.glare_dn > 0:
+        _add_glare(rng, img, crop_H_sign, diameter_m, s.sign_px, s.glare_dn)
     ellipse = disc_ellipse(crop_H_sign, diameter_m)
     if s.dirt:
         _add_dirt(rng, img, ellipse[0], ellipse[1][0] / 2)
-    line = _add_power_line(rng, img, ellipse, s.sign_px) if s.power_line else None
+    parts_px = part_polygons_px(crop_H_sign, diameter_m)
+    bands = tuple(place(o, rng, side, ellipse[0], parts_px, s.sign_px) for o in _occluders(s))
+    for band in bands:
+        draw_band(img, band)
+    part_cover, covered_slots = coverage(bands, parts_px, img.shape)
     blur_angle = rng.uniform(0, math.pi)
     exposure = _Exposure(
         s.blur_px, blur_angle, s.psf_sigma_px, s.contrast, s.brightness, s.noise_sigma
     )
-    image = _expose(rng, img, exposure)
+    image = _jpeg(_expose(rng, img, exposure), s.jpeg_quality)
     kps = sign_keypoints(code, diameter_m)
     names = list(kps)
     uv = apply_homography(crop_H_sign, np.array([kps[n][:2] for n in names]))
@@ -424,5 +522,8 @@ def render_crop(
         diameter_px=float(s.sign_px),
         crop_H_sign=crop_H_sign,
         diameter_m=diameter_m,
-        conditions=s.conditions(blur_angle, line),
+        conditions=s.conditions(blur_angle, bands, background),
+        covered_slots=covered_slots,
+        part_cover=part_cover,
+        occluders=tuple(b.kind for b in bands),
     )

@@ -37,6 +37,7 @@ from signpose.io.boxes import FrameConditions, FrameTruth, read_boxes, write_box
 from signpose.io.camera_file import write_camera_info
 from signpose.io.tum import write_tum
 from signpose.maps.loader import SignMap, write_map
+from signpose.sim.conditions import ConditionSettings, frame_draws
 from signpose.sim.frame import render_frame
 from signpose.sim.render import RenderOptions
 from signpose.sim.scene import Scene, SceneOptions, build_scene
@@ -57,6 +58,23 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+# Real-pylon conditions at the rates ``SimSettings.hard`` uses: a fifth of the signs
+# crossed by a member, two extra conductors, JPEG 70-90, a vibration burst every
+# ~3 s and an exposure step every ~5 s. The older opaque face bars (``occlusion``)
+# stay off: they are this simulator's own invention, not a pylon's.
+HARD = {
+    "dirt": True,
+    "members": 0.2,
+    "conductors": 2,
+    "insulators": True,
+    "faded": 0.3,
+    "glare": 0.3,
+    "photo": True,
+    "jpeg_range": (70, 90),
+    "vibration": 0.3,
+    "exposure_steps": 0.2,
+}
 
 
 # --------------------------------------------------------------------------- settings
@@ -87,6 +105,15 @@ class SimSettings:
         background: sky, ground, lattice and conductors (False: flat grey).
         lighting: slowly varying global gain/offset.
         supersample: sub-samples per pixel side for the sign faces.
+        members: share of signs with a lattice member in front (``sim.scene``).
+        conductors: extra conductors strung in front of the signs (``sim.scene``).
+        insulators: insulator strings drawn with their sheds (``sim.scene``).
+        faded: share of faces with faded paint (``sim.scene``).
+        glare: share of faces with a specular highlight (``sim.scene``).
+        photo: a real photograph as the background (``sim.scene``, ``sim.photos``).
+        jpeg_range: per-frame JPEG quality range, e.g. (70, 90) (``sim.conditions``).
+        vibration: vibration blur bursts per second (``sim.conditions``).
+        exposure_steps: auto-exposure gain steps per second (``sim.conditions``).
     """
 
     frames: int = 210
@@ -108,6 +135,19 @@ class SimSettings:
     background: bool = True
     lighting: bool = True
     supersample: int = 4
+    members: float = 0.0
+    conductors: int = 0
+    insulators: bool = False
+    faded: float = 0.0
+    glare: float = 0.0
+    photo: bool = False
+    jpeg_range: tuple[int, int] | None = None
+    vibration: float = 0.0
+    exposure_steps: float = 0.0
+
+    def hard(self) -> SimSettings:
+        """These settings with every real-pylon condition on at ``HARD`` rates."""
+        return replace(self, **HARD)
 
     def render_options(self) -> RenderOptions:
         return RenderOptions(
@@ -120,7 +160,20 @@ class SimSettings:
         )
 
     def scene_options(self) -> SceneOptions:
-        return SceneOptions(dirt=self.dirt, occlusion=self.occlusion, background=self.background)
+        return SceneOptions(
+            dirt=self.dirt,
+            occlusion=self.occlusion,
+            background=self.background,
+            members=self.members,
+            conductors=self.conductors,
+            insulators=self.insulators,
+            faded=self.faded,
+            glare=self.glare,
+            photo=self.photo,
+        )
+
+    def condition_settings(self) -> ConditionSettings:
+        return ConditionSettings(self.jpeg_range, self.vibration, self.exposure_steps)
 
     def validate(self) -> SimSettings:
         """Return self, or raise InputError naming the bad setting."""
@@ -148,6 +201,16 @@ class SimSettings:
             raise InputError(f"distance_m must be > 0, got {self.distance_m}")
         if not 1 <= self.supersample <= 16:
             raise InputError(f"supersample must be in 1..16, got {self.supersample}")
+        for name in ("members", "faded", "glare"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise InputError(f"{name} must be a share in [0, 1], got {getattr(self, name)}")
+        for name in ("conductors", "vibration", "exposure_steps"):
+            if not getattr(self, name) >= 0:
+                raise InputError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.jpeg_range is not None and not 1 <= self.jpeg_range[0] <= self.jpeg_range[1] <= 100:
+            raise InputError(
+                f"jpeg_range must be lo,hi with 1 <= lo <= hi <= 100, got {self.jpeg_range}"
+            )
         return self
 
 
@@ -258,24 +321,38 @@ def _render_flight(
     """Render and write every frame of ``traj``; return their truth."""
     poses, stamps = traj.world_T_cam(), traj.stamps_s
     options = settings.render_options()
-    background = "procedural" if settings.background else "flat"
+    draws = frame_draws(
+        settings.condition_settings(), len(traj), settings.fps, settings.width, settings.seed
+    )
     truths: list[FrameTruth] = []
     for i in tqdm(range(len(traj)), desc="simulate", unit="frame", disable=not progress):
         gain, offset = lighting_at(float(stamps[i]), settings.seed)
+        gain *= draws[i].gain_factor
+        frame_options = options
+        if draws[i].jpeg_quality is not None:
+            frame_options = replace(options, jpeg_quality=draws[i].jpeg_quality)
+        vibration = draws[i].vibration_px if settings.vibration > 0 else None
         image, signs = render_frame(
             scene,
             poses[i],
             np.random.default_rng([settings.seed, i]),
-            options=options,
+            options=frame_options,
             exposure_poses=_exposure_poses(settings, poses, stamps, i),
             gain=gain,
             offset=offset,
+            vibration_px=None if vibration is None else np.asarray(vibration),
         )
         stamp_ns = stamp_ns_of(i, settings.fps)
         writer.write(i, stamp_ns, image)
         if not settings.lighting:
             gain, offset = 1.0, 0.0
-        conditions = FrameConditions(settings.jpeg_quality, gain, offset, (0.0, 0.0), background)
+        conditions = FrameConditions(
+            frame_options.jpeg_quality,
+            gain,
+            offset,
+            draws[i].vibration_px if settings.blur else (0.0, 0.0),
+            scene.background,
+        )
         truths.append(FrameTruth(i, stamp_ns, tuple(signs), conditions))
     return truths
 

@@ -15,15 +15,25 @@ from __future__ import annotations
 import numpy as np
 
 from signpose.estimator.camera import CameraModel, pixel_from_cam_point, pixel_from_world_point
-from signpose.io.boxes import SignTruth
+from signpose.frontend.sign import fill_polygon_aa
+from signpose.io.boxes import COVERED_FRACTION, SignTruth
 from signpose.sim.pylon import Line3D
-from signpose.sim.render import ProjectedLine, ProjectedSign, RenderOptions, compose_frame
+from signpose.sim.render import (
+    Glare,
+    ProjectedLine,
+    ProjectedSign,
+    RenderOptions,
+    compose_frame,
+    line_coverage,
+)
 from signpose.sim.scene import Scene, SignModel
 
 MIN_DEPTH_M = 0.3  # nearer points are not projected
 # Beyond ~1.3 (normalised radius) a barrel polynomial folds back; the image corner is ~0.66.
 MAX_NORMALISED_RADIUS = 1.3
 EDGE_ON = 0.05  # cosine below which a face is seen edge-on and skipped
+TRUTH_SUPERSAMPLE = 4  # sub-samples per pixel side of the covered-part masks
+MIN_COVER_PX = 0.5  # an occluder covering less of the disc than this [px^2] is not counted
 
 
 def _cam_points(world_T_cam: np.ndarray, world_points: np.ndarray) -> np.ndarray:
@@ -66,20 +76,9 @@ def project_lines(
             if len(run) < 2:
                 continue
             d_mid = 0.5 * (depth[run[:-1]] + depth[run[1:]])
-            out.append(ProjectedLine(p[run], ln.width_m * f / d_mid, ln.bgr))
+            width_m = ln.width_m if ln.widths_m is None else ln.widths_m[run[:-1]]
+            out.append(ProjectedLine(p[run], width_m * f / d_mid, ln.bgr))
     return out
-
-
-def _segment_distance(point: np.ndarray, polyline: np.ndarray) -> float:
-    a, b = polyline[:-1], polyline[1:]
-    ab = b - a
-    t = np.clip(
-        np.einsum("ij,ij->i", point - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12),
-        0,
-        1,
-    )
-    d = a + t[:, None] * ab - point
-    return float(np.sqrt(np.einsum("ij,ij->i", d, d).min()))
 
 
 def _motion_px(
@@ -115,6 +114,16 @@ def _disc_in_view(camera: CameraModel, world_T_cam: np.ndarray, s: SignModel) ->
     return disc_px
 
 
+def _project_glare(camera: CameraModel, world_T_cam: np.ndarray, s: SignModel) -> Glare | None:
+    if s.glare is None:
+        return None
+    view = world_T_cam[:3, 3] - s.glare.center_m
+    depth = float(np.linalg.norm(view))
+    center_px = pixel_from_world_point(camera, world_T_cam, s.glare.center_m[None])[0][0]
+    radius_px = s.glare.radius_m * camera.fx / depth
+    return Glare(center_px, radius_px, s.glare.strength_dn(view / depth))
+
+
 def _project_sign(
     camera: CameraModel, world_T_cam: np.ndarray, s: SignModel, disc_px: np.ndarray, motion
 ) -> ProjectedSign:
@@ -129,7 +138,50 @@ def _project_sign(
         tuple((px(poly), v) for poly, v in s.occluders_m),
         motion if motion is not None else np.zeros(2),
         s.shade,
+        s.fade,
+        _project_glare(camera, world_T_cam, s),
     )
+
+
+def _coverage(
+    camera: CameraModel,
+    world_T_cam: np.ndarray,
+    s: SignModel,
+    projected: ProjectedSign,
+    in_front: dict[str, list[ProjectedLine]],
+) -> tuple[dict[str, float], tuple[str, ...]]:
+    """(part name -> covered share of its area, kinds of occluder over the disc).
+
+    Measured on anti-aliased masks in the disc's bounding box at mid-exposure
+    (no blur): bars on the face, then each kind of line in front.
+    """
+    lo = np.floor(projected.disc_px.min(axis=0)).astype(int) - 1
+    hi = np.ceil(projected.disc_px.max(axis=0)).astype(int) + 2
+    lo = np.maximum(lo, 0)
+    hi = np.minimum(hi, [camera.width, camera.height])
+    shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))
+    if shape[0] <= 0 or shape[1] <= 0:
+        return {}, ()
+    off = lo.astype(float)
+    disc = np.zeros(shape, np.float32)
+    fill_polygon_aa(disc, projected.disc_px - off, 1.0, TRUTH_SUPERSAMPLE)
+    masks = {"bar": np.zeros(shape, np.float32)}
+    for poly, _ in projected.occluders_px:
+        fill_polygon_aa(masks["bar"], poly - off, 1.0, TRUTH_SUPERSAMPLE)
+    for kind, lines in in_front.items():
+        masks[kind] = line_coverage(lines, off, shape) if lines else np.zeros(shape, np.float32)
+    clear = np.ones(shape, np.float32)
+    for m in masks.values():
+        clear *= 1.0 - np.clip(m, 0.0, 1.0)
+    kinds = tuple(k for k, m in masks.items() if float((m * disc).sum()) > MIN_COVER_PX)
+    cover: dict[str, float] = {}
+    for name, poly_m in (s.parts_m or {}).items():
+        part = np.zeros(shape, np.float32)
+        poly_px = pixel_from_world_point(camera, world_T_cam, poly_m)[0]
+        fill_polygon_aa(part, poly_px - off, 1.0, TRUTH_SUPERSAMPLE)
+        area = float(part.sum())
+        cover[name] = float((part * (1.0 - clear)).sum()) / area if area > 0 else 0.0
+    return cover, kinds
 
 
 def _sign_truth(
@@ -137,7 +189,7 @@ def _sign_truth(
     world_T_cam: np.ndarray,
     s: SignModel,
     projected: ProjectedSign,
-    front: list[ProjectedLine],
+    in_front: dict[str, list[ProjectedLine]],
 ) -> SignTruth:
     w, h = camera.width, camera.height
     disc_px = projected.disc_px
@@ -149,10 +201,7 @@ def _sign_truth(
     c = pixel_from_world_point(camera, world_T_cam, s.center_m[None])[0][0]
     half = len(disc_px) // 2
     diameter = float(np.linalg.norm(disc_px[:half] - disc_px[half : 2 * half], axis=1).max())
-    occluded = bool(projected.occluders_px) or any(
-        _segment_distance(c, ln.points_px) < 0.5 * diameter + 0.5 * float(ln.widths_px.max())
-        for ln in front
-    )
+    cover, kinds = _coverage(camera, world_T_cam, s, projected, in_front)
     x0, y0 = max(lo[0], -0.5), max(lo[1], -0.5)
     x1, y1 = min(hi[0], w - 0.5), min(hi[1], h - 0.5)
     return SignTruth(
@@ -161,9 +210,17 @@ def _sign_truth(
         center_px=(float(c[0]), float(c[1])),
         diameter_px=diameter,
         keypoints_px={k: (float(p[0]), float(p[1])) for k, p in zip(names, kp_px, strict=True)},
-        occluded=occluded,
+        occluded=bool(kinds),
         truncated=bool(lo[0] < -0.5 or lo[1] < -0.5 or hi[0] > w - 0.5 or hi[1] > h - 0.5),
         distance_m=float(np.linalg.norm(world_T_cam[:3, 3] - s.center_m)),
+        covered_slots=tuple(
+            k for k in range(1, 5) if cover.get(f"slot{k}", 0.0) >= COVERED_FRACTION
+        ),
+        part_cover=cover,
+        occluders=kinds,
+        fade=s.fade,
+        dirty=bool(s.dirt_m),
+        glare_dn=projected.glare.peak_dn if projected.glare is not None else 0.0,
     )
 
 
@@ -176,6 +233,7 @@ def render_frame(
     exposure_poses: tuple[np.ndarray, np.ndarray] | None = None,
     gain: float = 1.0,
     offset: float = 0.0,
+    vibration_px: np.ndarray | None = None,
 ) -> tuple[np.ndarray, list[SignTruth]]:
     """Render the scene from one pose.
 
@@ -187,6 +245,8 @@ def render_frame(
         exposure_poses: (4, 4) poses at the start and end of the exposure; the
             motion blur follows the image motion between them. None: no blur.
         gain, offset: global lighting (``out = gain * in + offset``).
+        vibration_px: (2,) blur segment of a vibration burst added to every
+            motion this frame [px]; None = none.
 
     Returns:
         ((H, W, 3) uint8 BGR image, truth of every sign whose disc is in the image).
@@ -195,15 +255,23 @@ def render_frame(
     cam = scene.camera
     front = project_lines(cam, world_T_cam, scene.lines_front) if options.background else []
     behind = project_lines(cam, world_T_cam, scene.lines_behind) if options.background else []
+    members = project_lines(cam, world_T_cam, scene.members)
+    in_front = {"member": members, "conductor": front}
+
+    def motion_of(point_m: np.ndarray) -> np.ndarray | None:
+        m = _motion_px(cam, exposure_poses, point_m)
+        if vibration_px is None or not options.blur:
+            return m
+        return np.asarray(vibration_px, float) + (m if m is not None else 0.0)
+
     projected: list[ProjectedSign] = []
     truths: list[SignTruth] = []
     for s in scene.signs:
         disc_px = _disc_in_view(cam, world_T_cam, s)
         if disc_px is None:
             continue
-        motion = _motion_px(cam, exposure_poses, s.center_m)
-        projected.append(_project_sign(cam, world_T_cam, s, disc_px, motion))
-        truths.append(_sign_truth(cam, world_T_cam, s, projected[-1], front))
+        projected.append(_project_sign(cam, world_T_cam, s, disc_px, motion_of(s.center_m)))
+        truths.append(_sign_truth(cam, world_T_cam, s, projected[-1], in_front))
     # Far signs first so nearer ones cover them.
     order = np.argsort([-t.distance_m for t in truths])
     image = compose_frame(
@@ -214,7 +282,8 @@ def render_frame(
         rng,
         lines_behind=behind,
         lines_front=front,
-        background_motion_px=_motion_px(cam, exposure_poses, scene.center_m),
+        members_front=members,
+        background_motion_px=motion_of(scene.center_m),
         gain=gain,
         offset=offset,
         options=options,

@@ -27,15 +27,24 @@ LOW_VOLTAGE_WIDTH_M = 0.025
 SPAN_M = 300.0  # conductor length drawn on each side of the pylon
 SAG_M = 9.0  # conductor sag at mid span
 LEVEL_M = 3.0  # height of one lattice bay
+INSULATOR_BGR = (112.0, 128.0, 104.0)  # toughened glass, grey-green
+SHED_DIAMETER_M = 0.255  # cap-and-pin disc insulator (IEC 60305 U120B)
+SHED_SPACING_M = 0.146
+INSULATOR_CORE_M = 0.06
 
 
 @dataclass(frozen=True)
 class Line3D:
-    """A thin 3D structure: (N, 3) polyline [m], world; width [m]; colour BGR."""
+    """A thin 3D structure: (N, 3) polyline [m], world; width [m]; colour BGR.
+
+    ``widths_m``, when given, is the (N - 1,) width of each segment [m] (an
+    insulator's sheds); otherwise every segment is ``width_m`` wide.
+    """
 
     points_m: np.ndarray
     width_m: float
     bgr: tuple[float, float, float]
+    widths_m: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -132,7 +141,19 @@ def _tower_members(t: _Tower) -> list[Line3D]:
     return out
 
 
-def _crossarms(t: _Tower) -> tuple[list[Line3D], list[np.ndarray]]:
+def insulator_string(top: np.ndarray, bottom: np.ndarray) -> Line3D:
+    """A chain of disc insulators from ``top`` to ``bottom``: sheds on a thin core."""
+    length = float(np.linalg.norm(bottom - top))
+    step = SHED_SPACING_M / 5.0
+    n = max(int(length / step), 2) + 1
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    mid = (np.arange(n - 1) + 0.5) * length / (n - 1)
+    on_shed = np.mod(mid, SHED_SPACING_M) < 0.25 * SHED_SPACING_M
+    widths = np.where(on_shed, SHED_DIAMETER_M, INSULATOR_CORE_M)
+    return Line3D(top * (1 - t) + bottom * t, INSULATOR_CORE_M, INSULATOR_BGR, widths)
+
+
+def _crossarms(t: _Tower, insulators: bool = False) -> tuple[list[Line3D], list[np.ndarray]]:
     """Two crossarms with their insulator strings and the earth-wire peak; the string tips."""
     out: list[Line3D] = []
     tips: list[np.ndarray] = []
@@ -151,7 +172,10 @@ def _crossarms(t: _Tower) -> tuple[list[Line3D], list[np.ndarray]]:
         for lat in (-1, 1):
             top = t.point(lat * (arm_half - 0.3), t.hw(z_arm), z_arm)
             tips.append(t.point(lat * (arm_half - 0.3), t.hw(z_arm), z_arm - 2.2))
-            out.append(segment(top, tips[-1], 0.18, 4))  # insulator string
+            if insulators:
+                out.append(insulator_string(top, tips[-1]))
+            else:
+                out.append(segment(top, tips[-1], 0.18, 4))  # insulator string, plain
     peak = t.point(0.0, t.hw(t.z_top), t.z_top + 3.5)
     for lat in (-1, 1):
         for d in (0.0, 2 * t.hw(t.z_top)):
@@ -185,11 +209,29 @@ def _conductors(
     return far, near
 
 
-def pylon_lines(sign_map: SignMap) -> PylonLines:
-    """Lattice members, far conductors and near conductors of a pylon behind the signs."""
+def _side_strings(t: _Tower, sign_map: SignMap) -> list[Line3D]:
+    """Two insulator strings hanging at the front corners, beside the signs (jumper strings)."""
+    z_top = float(sign_map.centers_m()[:, 2].max()) + 1.0
+    out = []
+    for lat in (-1, 1):
+        top = t.point(lat * (t.hw(z_top) + 0.4), -0.1, z_top)
+        out.append(insulator_string(top, top - np.array([0.0, 0.0, 1.6])))
+    return out
+
+
+def pylon_lines(sign_map: SignMap, insulators: bool = False) -> PylonLines:
+    """Lattice members, far conductors and near conductors of a pylon behind the signs.
+
+    Args:
+        sign_map: the signs the pylon carries.
+        insulators: draw insulator strings as chains of sheds (and two more beside
+            the signs) instead of plain bars.
+    """
     tower = _tower(sign_map)
     center = site_frame(sign_map)[0]
     lattice = _tower_members(tower)
-    arms, tips = _crossarms(tower)
+    arms, tips = _crossarms(tower, insulators)
+    if insulators:
+        arms += _side_strings(tower, sign_map)
     far, near = _conductors(tower, tips, center)
     return PylonLines(tuple(lattice + arms), tuple(far), tuple(near))

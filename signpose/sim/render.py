@@ -5,10 +5,12 @@ model and projects every 3D element -- the sign faces, dirt and occluders on
 them, lattice members, conductors -- into raw (distorted) pixels; this module
 receives those 2D polygons and polylines and turns them into a BGR frame:
 
-    sky and ground (once-per-flight textures, re-projected per frame)
+    sky and ground (once-per-flight textures, re-projected per frame) or a
+       photograph (``PhotoBackdrop``)
     -> lattice members and far conductors -> motion blur of that layer
     -> each sign, rendered in its own bounding box (anti-aliased, supersampled,
-       blurred with its own motion) -> conductors in front of the signs
+       faded paint, specular glare, blurred with its own motion)
+    -> conductors in front of the signs -> lattice members in front of signs
     -> lighting gain/offset -> sensor noise -> JPEG round trip.
 
 Pixels: u right, v down, pixel centres at integer coordinates (as in
@@ -74,6 +76,21 @@ class ProjectedLine:
 
 
 @dataclass(frozen=True)
+class Glare:
+    """A specular highlight on a face as projected this frame.
+
+    Attributes:
+        center_px: (2,) centre of the highlight in raw pixels.
+        radius_px: its 1-sigma radius [px].
+        peak_dn: intensity added at its centre [DN] (the face's sum saturates at 255).
+    """
+
+    center_px: np.ndarray
+    radius_px: float
+    peak_dn: float
+
+
+@dataclass(frozen=True)
 class ProjectedSign:
     """One sign face as the caller projected it for this frame.
 
@@ -89,6 +106,8 @@ class ProjectedSign:
         motion_px: (2,) image motion of the sign centre during the exposure
             [px]; the blur kernel is this segment, centred on the sign.
         shade: reflectance/illumination factor of this face (weathering, sun angle).
+        fade: paint fading: black and white are pulled toward their mean by ``fade``.
+        glare: a specular highlight on the face, None = none.
     """
 
     code: str
@@ -98,6 +117,8 @@ class ProjectedSign:
     occluders_px: tuple[tuple[np.ndarray, float], ...] = ()
     motion_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
     shade: float = 1.0
+    fade: float = 0.0
+    glare: Glare | None = None
 
 
 def _value_noise(rng: np.random.Generator, shape: tuple[int, int], cells: list[int]) -> np.ndarray:
@@ -234,6 +255,60 @@ class Backdrop:
         small = cv2.blendLinear(sky, ground, w_sky, 1.0 - w_sky)
         big = cv2.resize(small, (bw * sc, bh * sc), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(big[: self.height, : self.width])
+
+
+class PhotoBackdrop(Backdrop):
+    """A photograph behind the pylon instead of the procedural sky and ground.
+
+    The photograph is wrapped around the viewer at infinity: a ray's azimuth
+    (about world z, from ``look_dir``) and elevation map linearly to photo
+    pixels, the photo's height spanning the frame's vertical field of view at
+    the photo's centre, mirror-tiled beyond its edges. Rotating the camera
+    pans the photo; the lens distortion is ignored (as for the sky).
+
+    Args:
+        width, height: frame size [px].
+        photo_bgr: (h, w, 3) uint8 BGR photograph.
+        look_dir: (3,) world direction the flight mostly looks along.
+        seed: seeds the noise bank.
+    """
+
+    def __init__(
+        self, width: int, height: int, photo_bgr: np.ndarray, look_dir: np.ndarray, seed: int = 0
+    ):
+        super().__init__(width, height, seed=seed)
+        self.photo = np.ascontiguousarray(photo_bgr, dtype=np.uint8)
+        self.az0 = math.atan2(float(look_dir[1]), float(look_dir[0]))
+
+    def sky_and_ground(self, K: np.ndarray, world_T_cam: np.ndarray) -> np.ndarray:
+        ms = self.MAP_SCALE
+        mw, mh = -(-self.width // ms) + 1, -(-self.height // ms) + 1
+        gu = np.linspace(-0.5, self.width - 0.5, mw)
+        gv = np.linspace(-0.5, self.height - 0.5, mh)
+        Ki = np.linalg.inv(K)
+        R = np.asarray(world_T_cam, dtype=np.float64)[:3, :3]
+        xc = (Ki[0, 0] * gu + Ki[0, 2])[None, :]
+        yc = (Ki[1, 1] * gv + Ki[1, 2])[:, None]
+        d = [R[k, 0] * xc + R[k, 1] * yc + R[k, 2] for k in range(3)]
+        el = np.arctan2(d[2], np.hypot(d[0], d[1]))
+        c0, s0 = math.cos(self.az0), math.sin(self.az0)
+        az = np.arctan2(-s0 * d[0] + c0 * d[1], c0 * d[0] + s0 * d[1])
+        ph, pw = self.photo.shape[:2]
+        scale = ph * K[1, 1] / self.height  # photo px per radian
+        coarse = np.stack([(pw - 1) / 2 - az * scale, (ph - 1) / 2 - el * scale], -1)
+        fine = cv2.resize(
+            coarse.astype(np.float32), (self.width, self.height), interpolation=cv2.INTER_LINEAR
+        )
+        mx = _mirror(fine[..., 0], pw)
+        my = _mirror(fine[..., 1], ph)
+        return cv2.remap(self.photo, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def _mirror(x: np.ndarray, n: int) -> np.ndarray:
+    """Coordinates folded into [0, n - 1] by mirror tiling (float32)."""
+    period = 2.0 * (n - 1)
+    y = np.mod(x, period)
+    return np.where(y > n - 1, period - y, y).astype(np.float32)
 
 
 @functools.lru_cache(maxsize=4)
@@ -378,6 +453,20 @@ def _draw_lines(image: np.ndarray, lines: list[ProjectedLine], mask_mode: bool =
         cv2.polylines(image, [ip[i : j + 1]], False, color, int(thick[i]), cv2.LINE_AA, shift)
 
 
+def line_coverage(
+    lines: Sequence[ProjectedLine], origin_px: np.ndarray, shape: tuple[int, int]
+) -> np.ndarray:
+    """(h, w) float32 share of each pixel the ``lines`` cover (0..1), as they are drawn.
+
+    The box's pixel (0, 0) is the frame's pixel ``origin_px`` (2,); no blur.
+    """
+    mask = np.zeros(shape, np.uint8)
+    off = np.asarray(origin_px, float)
+    shifted = [ProjectedLine(ln.points_px - off, ln.widths_px, ln.bgr) for ln in lines]
+    _draw_lines(mask, shifted, mask_mode=True)
+    return mask.astype(np.float32) / 255.0
+
+
 def _bbox(polygons: list[np.ndarray], margin: int, w: int, h: int) -> tuple[int, int, int, int]:
     """Integer (x0, y0, x1, y1) around ``polygons`` plus ``margin``, clipped to the frame."""
     allp = np.concatenate([np.asarray(p, dtype=float).reshape(-1, 2) for p in polygons])
@@ -386,6 +475,15 @@ def _bbox(polygons: list[np.ndarray], margin: int, w: int, h: int) -> tuple[int,
     x1 = min(int(math.ceil(allp[:, 0].max())) + margin + 1, w)
     y1 = min(int(math.ceil(allp[:, 1].max())) + margin + 1, h)
     return x0, y0, x1, y1
+
+
+def _glare_spot(glare: Glare, off: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(h, w) float32 Gaussian highlight [DN] on a box whose pixel (0, 0) is ``off``."""
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float32)
+    du = u + off[0] - glare.center_px[0]
+    dv = v + off[1] - glare.center_px[1]
+    r2 = (du * du + dv * dv) / max(glare.radius_px, 0.5) ** 2
+    return (glare.peak_dn * np.exp(-0.5 * r2)).astype(np.float32)
 
 
 def _render_sign(frame: np.ndarray, sign: ProjectedSign, options: RenderOptions) -> None:
@@ -407,14 +505,20 @@ def _render_sign(frame: np.ndarray, sign: ProjectedSign, options: RenderOptions)
     alpha = np.zeros((y1 - y0, x1 - x0), np.float32)
     disc = sign.disc_px - off
     fill_polygon_aa(alpha, disc, 1.0, ss)
-    premult = alpha * (SIGN_BLACK * sign.shade)  # the black disc, premultiplied
+    black, white = SIGN_BLACK * sign.shade, SIGN_WHITE * sign.shade
+    if sign.fade > 0:
+        grey = 0.5 * (black + white)
+        black, white = black + sign.fade * (grey - black), white + sign.fade * (grey - white)
+    premult = alpha * black  # the black disc, premultiplied
     for part in sign.white_px:
-        fill_polygon_aa(premult, part - off, SIGN_WHITE * sign.shade, ss)
+        fill_polygon_aa(premult, part - off, white, ss)
     for poly, value, opacity in sign.dirt_px:
         stain = np.zeros_like(alpha)
         fill_polygon_aa(stain, poly - off, 1.0, ss)
         a = stain * alpha * float(opacity)
         premult += a * (float(value) - premult)
+    if sign.glare is not None and sign.glare.peak_dn > 0:
+        premult += alpha * _glare_spot(sign.glare, off, alpha.shape)
     for poly, value in sign.occluders_px:
         fill_polygon_aa(alpha, poly - off, 1.0, ss)
         fill_polygon_aa(premult, poly - off, float(value), ss)
@@ -435,6 +539,7 @@ def compose_frame(
     *,
     lines_behind: Sequence[ProjectedLine] = (),
     lines_front: Sequence[ProjectedLine] = (),
+    members_front: Sequence[ProjectedLine] = (),
     background_motion_px: np.ndarray | None = None,
     gain: float = 1.0,
     offset: float = 0.0,
@@ -450,7 +555,9 @@ def compose_frame(
         signs: the visible signs, projected by the caller (drawn in list order).
         rng: source of the per-frame randomness (noise crop).
         lines_behind: lattice members and conductors behind the signs.
-        lines_front: conductors in front of the signs (all drawn in the first one's colour).
+        lines_front: conductors in front of the signs (drawn with the background).
+        members_front: lattice members in front of signs (drawn even without
+            background: they are an occlusion condition, not scenery).
         background_motion_px: (2,) image motion during the exposure used to blur
             the background and the front lines [px].
         gain, offset: global lighting, ``out = gain * in + offset`` [DN].
@@ -481,18 +588,27 @@ def compose_frame(
         _render_sign(frame, sign, options)
     if options.background and lines_front:
         _composite_front_lines(frame, lines_front, bg_kernel)
+    if members_front:
+        _composite_front_lines(frame, members_front, bg_kernel)
     if not options.lighting:
         gain, offset = 1.0, 0.0
     return _sensor(frame, backdrop, rng, gain, offset, options)
 
 
 def _composite_front_lines(
-    frame: np.ndarray, lines_front: Sequence[ProjectedLine], kernel: np.ndarray | None
+    frame: np.ndarray, lines: Sequence[ProjectedLine], kernel: np.ndarray | None
 ) -> None:
-    """Blend ``lines_front`` (in the first one's colour, blurred by ``kernel``) into ``frame``."""
+    """Blend ``lines`` (blurred by ``kernel``) into ``frame``, one pass per colour."""
+    for bgr in dict.fromkeys(ln.bgr for ln in lines):
+        _composite_lines_of_one_colour(frame, [ln for ln in lines if ln.bgr == bgr], kernel)
+
+
+def _composite_lines_of_one_colour(
+    frame: np.ndarray, lines: list[ProjectedLine], kernel: np.ndarray | None
+) -> None:
     h, w = frame.shape[:2]
     mask = np.zeros((h, w), np.uint8)
-    _draw_lines(mask, list(lines_front), mask_mode=True)
+    _draw_lines(mask, lines, mask_mode=True)
     if kernel is not None:
         mask = cv2.filter2D(mask, -1, kernel, borderType=cv2.BORDER_CONSTANT)
     # Thin lines cover few pixels: composite only those.
@@ -501,7 +617,7 @@ def _composite_front_lines(
         xs, ys = nz[:, 0, 0], nz[:, 0, 1]
         a = mask[ys, xs].astype(np.float32)[:, None] * (1.0 / 255.0)
         px = frame[ys, xs].astype(np.float32)
-        color = np.asarray(lines_front[0].bgr, np.float32)
+        color = np.asarray(lines[0].bgr, np.float32)
         frame[ys, xs] = np.clip(np.rint(px + a * (color - px)), 0, 255).astype(np.uint8)
 
 

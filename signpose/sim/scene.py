@@ -5,6 +5,24 @@ frame (``frontend.sign``: x right, y up, z out of the face) and moved into
 the world once per flight; dirt and opaque bars lie on or just in front of
 the face. ``signpose.sim.frame`` projects all of it per pose.
 
+Conditions (``SceneOptions``, each off by default and recorded per sign in
+``boxes.jsonl``, see ``signpose.io.boxes``):
+    dirt        stains on 70 % of the faces (grime or pale deposits).
+    occlusion   an opaque bar on the face of 40 % of the signs, clear of the centre.
+    members     share of signs with a lattice member (angle steel 60-120 mm wide,
+                0.15-0.6 m in front of the face) crossing the disc at a random
+                place and angle; it may cover any part, the centre included.
+    conductors  extra conductors strung across the signs' height 2-8 m in front
+                of the face (20-30 mm thick), so that they cross signs from most views.
+    insulators  the crossarm insulator strings drawn as chains of sheds, and two
+                more strings hanging beside the signs.
+    faded       share of faces whose paint has faded: black and white pulled
+                toward grey by 0.15-0.5 (``SignTruth.fade``).
+    glare       share of faces with a specular highlight whose strength follows
+                the view direction (``SignTruth.glare_dn``, the peak in DN).
+    photo       real photographs behind the pylon instead of the procedural sky and
+                ground (``signpose.sim.photos``; procedural when scikit-image is missing).
+
 Randomness: one stream per purpose, seeded from the flight's seed, so that
 switching one condition on does not move the draws of another.
 """
@@ -19,12 +37,22 @@ import numpy as np
 from signpose.estimator.camera import CameraModel
 from signpose.frontend.sign import sign_keypoints, sign_shape
 from signpose.maps.loader import MapSign, SignMap
-from signpose.sim.pylon import Line3D, pylon_lines
-from signpose.sim.render import Backdrop
+from signpose.sim.photos import available_photos, load_photo
+from signpose.sim.pylon import CONDUCTOR_BGR, LATTICE_BGR, Line3D, catenary, pylon_lines
+from signpose.sim.render import Backdrop, PhotoBackdrop
 from signpose.sim.trajectories import site_frame
 
 BAR_DEPTH_M = 0.08  # opaque bars stand this far in front of the face
 STAIN_DEPTH_M = 0.001  # stains lie on the face (lifted off it against z-fighting)
+MEMBER_DEPTH_M = (0.15, 0.6)  # a lattice member in front of a face: distance range [m]
+MEMBER_WIDTH_M = (0.06, 0.12)  # angle steel L60..L120
+MEMBER_HALF_LENGTH_M = 1.5  # well past the disc: the member crosses the rim
+CONDUCTOR_FRONT_M = (2.0, 8.0)  # extra conductors: distance in front of the face [m]
+CONDUCTOR_FRONT_WIDTH_M = (0.02, 0.03)
+FADE_RANGE = (0.15, 0.5)
+GLARE_PEAK_DN = (60.0, 160.0)
+# Glare strength is peak * max(0, glint . view)^GLARE_SHARPNESS: a lobe of ~10 deg.
+GLARE_SHARPNESS = 60.0
 
 
 @dataclass(frozen=True)
@@ -40,6 +68,34 @@ class SceneOptions:
     dirt: bool = False
     occlusion: bool = False
     background: bool = True
+    members: float = 0.0
+    conductors: int = 0
+    insulators: bool = False
+    faded: float = 0.0
+    glare: float = 0.0
+    photo: bool = False
+
+
+@dataclass(frozen=True)
+class FaceGlare:
+    """A specular highlight on a face, in the world frame.
+
+    Attributes:
+        center_m: (3,) centre of the highlight on the face [m].
+        radius_m: its 1-sigma radius [m].
+        glint: (3,) unit direction into which the face mirrors the sun.
+        peak_dn: strength when looking straight along ``glint`` [DN].
+    """
+
+    center_m: np.ndarray
+    radius_m: float
+    glint: np.ndarray
+    peak_dn: float
+
+    def strength_dn(self, view: np.ndarray) -> float:
+        """Peak added this frame for a unit direction ``view`` from the face to the camera."""
+        c = max(0.0, float(self.glint @ view))
+        return self.peak_dn * c**GLARE_SHARPNESS
 
 
 @dataclass(frozen=True)
@@ -57,6 +113,10 @@ class SignModel:
         dirt_m: (polygon (P, 3) [m] world, intensity, opacity) stains.
         occluders_m: (polygon (P, 3) [m] world, intensity) bars in front of the face.
         shade: reflectance/illumination factor of the face (1 = nominal paint).
+        parts_m: part name (``signpose.io.boxes.PART_NAMES``) -> (P, 3) outline [m]
+            of every part, white or black, for the covered-part truth.
+        fade: paint fading, 0 = fresh.
+        glare: the face's specular highlight, None = none.
     """
 
     code: str
@@ -69,6 +129,9 @@ class SignModel:
     dirt_m: tuple[tuple[np.ndarray, float, float], ...]
     occluders_m: tuple[tuple[np.ndarray, float], ...]
     shade: float = 1.0
+    parts_m: dict[str, np.ndarray] | None = None
+    fade: float = 0.0
+    glare: FaceGlare | None = None
 
 
 @dataclass(frozen=True)
@@ -82,7 +145,10 @@ class Scene:
         lines_behind: lattice members and far conductors (drawn behind signs).
         lines_front: conductors between the pylon and the camera.
         center_m: (3,) mean sign centre [m], used for the background motion.
-        backdrop: sky/ground textures and noise bank (``signpose.sim.render``).
+        backdrop: sky/ground textures (or a photograph) and noise bank
+            (``signpose.sim.render``).
+        members: lattice members in front of signs (drawn even without background).
+        background: what the backdrop shows: ``procedural``, ``flat`` or ``photo:<name>``.
     """
 
     sign_map: SignMap
@@ -92,6 +158,8 @@ class Scene:
     lines_front: tuple[Line3D, ...]
     center_m: np.ndarray
     backdrop: Backdrop
+    members: tuple[Line3D, ...] = ()
+    background: str = "procedural"
 
 
 def densify(poly: np.ndarray, pieces: int) -> np.ndarray:
@@ -174,6 +242,7 @@ def _sign_model(
         poly, value = _bar(rng, r)
         bars.append((world(poly, BAR_DEPTH_M), value))
     kps = sign_keypoints(s.code, s.diameter_m)
+    every_part = sign_shape("1111", s.diameter_m).white_parts
     return SignModel(
         code=s.code,
         center_m=np.asarray(s.center_m, float),
@@ -184,6 +253,7 @@ def _sign_model(
         keypoints_m={k: s.center_m + R @ p for k, p in kps.items()},
         dirt_m=tuple(stains),
         occluders_m=tuple(bars),
+        parts_m={k: world(densify(c, 6)) for k, c in every_part.items()},
     )
 
 
@@ -205,6 +275,82 @@ def _at_least_one_bar(
     return signs[:k] + (replace(signs[k], occluders_m=bars),) + signs[k + 1 :]
 
 
+def _member(s: SignModel, R: np.ndarray, rng: np.random.Generator) -> Line3D:
+    """A lattice member crossing sign ``s`` (rotation ``R`` sign -> world) in front of its face."""
+    r = s.diameter_m / 2.0
+    rho, phi = 0.85 * r * math.sqrt(rng.random()), rng.uniform(0, 2 * np.pi)
+    through = np.array([rho * math.cos(phi), rho * math.sin(phi)])
+    angle = rng.uniform(0, np.pi)
+    along = MEMBER_HALF_LENGTH_M * np.array([math.cos(angle), math.sin(angle)])
+    depth = rng.uniform(*MEMBER_DEPTH_M)
+    ends = [np.array([*(through + k * along), depth]) for k in (-1.0, 1.0)]
+    t = np.linspace(0.0, 1.0, 8)[:, None]
+    points = s.center_m + (ends[0] * (1 - t) + ends[1] * t) @ R.T
+    return Line3D(points, float(rng.uniform(*MEMBER_WIDTH_M)), LATTICE_BGR)
+
+
+def _front_conductors(sign_map: SignMap, n: int, rng: np.random.Generator) -> list[Line3D]:
+    """``n`` conductors strung across the signs' height in front of the face."""
+    center, facing, right, _ = site_frame(sign_map)
+    z = sign_map.centers_m()[:, 2]
+    out = []
+    for _ in range(n):
+        mid = center + rng.uniform(*CONDUCTOR_FRONT_M) * facing
+        mid[2] = rng.uniform(z.min() - 0.5, z.max() + 0.5)
+        sag = rng.uniform(1.0, 2.5)
+        lift = np.array([0.0, 0.0, sag])
+        points = catenary(mid - 60.0 * right + lift, mid + 60.0 * right + lift, sag, 240)
+        out.append(Line3D(points, float(rng.uniform(*CONDUCTOR_FRONT_WIDTH_M)), CONDUCTOR_BGR))
+    return out
+
+
+def _glare(s: SignModel, R: np.ndarray, rng: np.random.Generator) -> FaceGlare:
+    r = s.diameter_m / 2.0
+    off = rng.uniform(-0.5, 0.5, 2) * r
+    axis = R[:, 0] * math.cos(a := rng.uniform(0, 2 * np.pi)) + R[:, 1] * math.sin(a)
+    tip = math.radians(rng.uniform(5.0, 25.0))
+    return FaceGlare(
+        center_m=s.center_m + R[:, :2] @ off,
+        radius_m=float(rng.uniform(0.2, 0.45) * r),
+        glint=math.cos(tip) * R[:, 2] + math.sin(tip) * axis,
+        peak_dn=float(rng.uniform(*GLARE_PEAK_DN)),
+    )
+
+
+def _conditions(
+    signs: tuple[SignModel, ...], sign_map: SignMap, options: SceneOptions, seed: int
+) -> tuple[tuple[SignModel, ...], list[Line3D]]:
+    """Signs with fading and glare as ``options`` ask, and the members in front of them."""
+    facing = site_frame(sign_map)[1]
+    rngs = [np.random.default_rng([seed, 5150, k]) for k in range(3)]
+    out, members = [], []
+    for s, ms in zip(signs, sign_map.signs, strict=True):
+        R = world_R_face(ms, facing)
+        if options.members > 0 and rngs[0].random() < options.members:
+            members.append(_member(s, R, rngs[0]))
+        if options.faded > 0 and rngs[1].random() < options.faded:
+            s = replace(s, fade=float(rngs[1].uniform(*FADE_RANGE)))
+        if options.glare > 0 and rngs[2].random() < options.glare:
+            s = replace(s, glare=_glare(s, R, rngs[2]))
+        out.append(s)
+    return tuple(out), members
+
+
+def _backdrop(
+    camera: CameraModel, sign_map: SignMap, options: SceneOptions, seed: int
+) -> tuple[Backdrop, str]:
+    """The flight's backdrop and its name (``procedural``, ``flat`` or ``photo:<name>``)."""
+    names = available_photos() if options.photo and options.background else ()
+    if not names:
+        return Backdrop(camera.width, camera.height, seed=seed), (
+            "procedural" if options.background else "flat"
+        )
+    name = names[int(np.random.default_rng([seed, 1717]).integers(len(names)))]
+    facing = site_frame(sign_map)[1]
+    photo = PhotoBackdrop(camera.width, camera.height, load_photo(name), -facing, seed=seed)
+    return photo, f"photo:{name}"
+
+
 def build_scene(
     sign_map: SignMap,
     camera: CameraModel,
@@ -216,8 +362,8 @@ def build_scene(
     Args:
         sign_map: the signs.
         camera: the simulated camera.
-        seed: seeds dirt, occluders and the textures.
-        options: what the scene holds.
+        seed: seeds dirt, occluders, the conditions and the textures.
+        options: what the scene holds (see the module docstring).
     """
     rng = np.random.default_rng([seed, 7919])
     center, facing, _, _ = site_frame(sign_map)
@@ -229,11 +375,14 @@ def build_scene(
     # Faces weather and catch the sun differently (own stream: other draws stay put).
     shades = np.random.default_rng([seed, 4242]).uniform(0.85, 1.08, len(signs))
     signs = tuple(replace(s, shade=float(f)) for s, f in zip(signs, shades, strict=True))
+    signs, members = _conditions(signs, sign_map, options, seed)
+    behind: tuple[Line3D, ...] = ()
+    front: tuple[Line3D, ...] = ()
     if options.background:
-        pylon = pylon_lines(sign_map)
-        behind, front = pylon.lattice + pylon.far, pylon.near
-    else:
-        behind, front = (), ()
+        pylon = pylon_lines(sign_map, insulators=options.insulators)
+        extra = _front_conductors(sign_map, options.conductors, np.random.default_rng([seed, 99]))
+        behind, front = pylon.lattice + pylon.far, pylon.near + tuple(extra)
+    backdrop, background = _backdrop(camera, sign_map, options, seed)
     return Scene(
         sign_map=sign_map,
         camera=camera,
@@ -241,5 +390,7 @@ def build_scene(
         lines_behind=behind,
         lines_front=front,
         center_m=center,
-        backdrop=Backdrop(camera.width, camera.height, seed=seed),
+        backdrop=backdrop,
+        members=tuple(members),
+        background=background,
     )
