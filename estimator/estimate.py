@@ -254,7 +254,11 @@ def _from_frame_poses(
 def _smoothed_status(
     kept: Measurements, r: SmootherResult, camera: CameraModel, st: StatusSettings
 ) -> tuple[PoseStatus, ...]:
-    """Each smoothed pose's status from the measurements the final solve kept."""
+    """Each smoothed pose's status from the measurements the final solve kept.
+
+    Ill-conditioned means a worst-axis marginal sigma above the setting (the
+    frame's own keypoints' when the marginals were not computed).
+    """
     order = np.argsort(kept.frame, kind="stable")
     starts = np.searchsorted(kept.frame[order], np.arange(kept.n_frames + 1))
     out = []
@@ -267,9 +271,15 @@ def _smoothed_status(
         world = r.landmarks_world[kept.landmark[ids]]
         uv, _, _ = pixels_and_pose_jacobian(camera, T, world)
         chi2 = float(np.sum(((kept.px[ids] - uv) / kept.sigma_px[ids, None]) ** 2))
-        sigma_m = kept.landmark_sigma_m[kept.landmark[ids]]
-        cov = pose_covariance(camera, T, world, kept.sigma_px[ids], sigma_m)
-        worst = worst_axis_sigma(cov, T[:3, :3])
+        if np.all(np.isfinite(r.sigma_xyz[i])):  # the marginal: what the user is given
+            worst = float(np.max(r.sigma_xyz[i]))
+        else:  # no marginals: how well the frame's own keypoints fix it
+            lm = kept.landmark[ids]
+            sign_id = np.unique(np.asarray(kept.landmark_code)[lm], return_inverse=True)[1]
+            cov = pose_covariance(
+                camera, T, world, kept.sigma_px[ids], kept.landmark_sigma_m[lm], sign_id
+            )
+            worst = worst_axis_sigma(cov, T[:3, :3])
         out.append(classify(len(ids), worst, chi2, 2 * len(ids), st))
     return tuple(out)
 

@@ -125,6 +125,7 @@ class _Correspondences:
     def fit(self, camera: CameraModel, world_T_cam: np.ndarray, inliers: np.ndarray) -> dict:
         """FramePose fields describing how well the inliers fix and fit the pose."""
         err, _ = _reproject_errors(camera, world_T_cam, self.world[inliers], self.px[inliers])
+        sign_id = np.unique(np.asarray(self.codes), return_inverse=True)[1].reshape(-1)
         return {
             "cov6": pose_covariance(
                 camera,
@@ -132,6 +133,7 @@ class _Correspondences:
                 self.world[inliers],
                 self.sigma_px[inliers],
                 self.sigma_m[inliers],
+                sign_id[inliers],
             ),
             "keypoints_used": int(inliers.sum()),
             "chi2": float(np.sum((err / self.sigma_px[inliers]) ** 2)),

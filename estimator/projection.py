@@ -112,30 +112,38 @@ def pose_covariance(
     world_p: np.ndarray,
     sigma_px: np.ndarray,
     sigma_m: np.ndarray,
+    sign_id: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """(6, 6) covariance of a pose fixed by its keypoints alone (inverse Fisher information).
 
-    Each keypoint's pixel covariance is the pixel noise plus the survey noise
-    of its world point seen through the projection: ``sigma_px^2 I +
-    sigma_m^2 J_p J_p^T``.
+    The pixels' covariance is the pixel noise plus the survey noise seen
+    through the projection. With ``sign_id`` the survey error is a rigid
+    shift of each sign (shared by its keypoints, as a survey of the sign's
+    centre gives it); without, every keypoint's is independent.
 
     Args:
         world_p: (K, 3) world points [m]; sigma_px: (K,) pixel sigmas;
-        sigma_m: (K,) survey sigmas [m].
+        sigma_m: (K,) survey sigmas [m]; sign_id: (K,) sign of each point, or None.
 
     Returns:
         The covariance ([rotation, translation], camera frame), or None when
         the keypoints do not fix all six degrees of freedom.
     """
-    if len(world_p) < 3:
+    k = len(world_p)
+    if k < 3:
         return None
     _, J, J_point = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
     sp = np.asarray(sigma_px, float).reshape(-1)
     sm = np.asarray(sigma_m, float).reshape(-1)
-    C = sp[:, None, None] ** 2 * np.eye(2) + sm[:, None, None] ** 2 * J_point @ J_point.transpose(
-        0, 2, 1
+    same = np.eye(k, dtype=bool) if sign_id is None else sign_id[:, None] == sign_id[None, :]
+    # (2K, 2K): blocks J_a sigma^2 J_b^T between keypoints a, b of one sign.
+    survey = (
+        np.einsum("aij,bkj->aibk", J_point, J_point)
+        * (same * sm[:, None] * sm[None, :])[:, None, :, None]
     )
-    info = np.einsum("kai,kab,kbj->ij", J, np.linalg.inv(C), J)
+    C = survey.reshape(2 * k, 2 * k) + np.diag(np.repeat(sp**2, 2))
+    Jf = J.reshape(2 * k, 6)
+    info = Jf.T @ np.linalg.solve(C, Jf)
     if np.linalg.cond(info) > MAX_CONDITION:
         return None
     return np.linalg.inv(info)

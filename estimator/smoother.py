@@ -27,7 +27,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -927,3 +927,23 @@ def residuals_px(meas: Measurements, res: SmootherResult, camera: CameraModel) -
         return np.zeros(0)
     pred = project(camera, res.world_T_cam[meas.frame], res.landmarks_world[meas.landmark])
     return np.linalg.norm(pred - meas.px, axis=1)
+
+
+def covariances_at(
+    meas: Measurements,
+    stamps_s: np.ndarray,
+    world_T_cam: np.ndarray,
+    camera: CameraModel,
+    settings: SmootherSettings,
+) -> np.ndarray:
+    """(N, 6, 6) pose covariances of the Gaussian graph linearised at ``world_T_cam``.
+
+    No robust kernel, landmarks at the survey. At the true poses, with the true
+    pixel noise in ``meas.sigma_px``, this is the Cramér-Rao bound of the
+    smoother's model (motion prior and survey priors included).
+    """
+    s = replace(settings, kernel=GNC)  # GNC's noise models are the plain Gaussian ones
+    b = _GraphBuilder(meas, stamps_s, camera, s)
+    g = _batch_graph(b, np.asarray(world_T_cam, float), stamps_s)
+    order = chain_ordering(meas.n_frames, len(meas.landmark_code), s.motion)
+    return batch_covariances(g.graph, g.values, meas.n_frames, order)
