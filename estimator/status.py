@@ -59,7 +59,7 @@ class StatusSettings:
     """
 
     min_keypoints: int = 4
-    weak_sigma_m: float = 0.25
+    weak_sigma_m: float = 0.5
     alpha: float = 1e-3
 
 
