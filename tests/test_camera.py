@@ -1,9 +1,13 @@
 """Camera files in three formats, projection and undistortion."""
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from signpose.estimator.camera import (
     EQUIDISTANT,
     PLUMB_BOB,
@@ -16,7 +20,14 @@ from signpose.estimator.camera import (
 )
 
 from signpose.core.errors import InputError
-from signpose.io.camera_file import load_camera, write_camera_info
+from signpose.io.camera_file import (
+    MAX_CAMERA_FILE_BYTES,
+    load_camera,
+    read_camera_file,
+    write_camera_info,
+    write_kalibr,
+    write_opencv,
+)
 
 K = np.array([[1210.5, 0.0, 955.25], [0.0, 1208.75, 541.5], [0.0, 0.0, 1.0]])
 CAMERAS = {
@@ -141,3 +152,230 @@ def test_check_image_size():
     check_image_size(cam, 640, 480, "video.mp4")
     with pytest.raises(InputError, match="video.mp4"):
         check_image_size(cam, 1920, 1080, "video.mp4")
+
+
+# --------------------------------------------------------------------------- real files (issue 13)
+
+REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "camera-files"
+needs_reference = pytest.mark.skipif(
+    not REFERENCE.is_dir(), reason="../shared/reference/camera-files is absent"
+)
+
+# Values as SOURCES.md gives them for each file (and the file itself shows).
+REFERENCE_FILES = {
+    "ros_cim_test_calibration.yaml": (
+        "camera_info",
+        PLUMB_BOB,
+        (640, 480),
+        (1168.68, 1169.01, 295.015, 252.247, 0.0),
+        [-1.04482, 1.59252, -0.0196308, 0.0287906, 0.0],
+    ),
+    "ros_usb_cam_camera_info.yaml": (
+        "camera_info",
+        PLUMB_BOB,
+        (640, 480),
+        (438.783367, 437.302876, 305.593336, 243.738352, 0.0),
+        [-0.361976, 0.110510, 0.001014, 0.000505, 0.0],
+    ),
+    "ros_depthai_left_stereo.yaml": (
+        "camera_info",
+        PLUMB_BOB,
+        (1280, 720),
+        (800.40414, 799.68286, 638.37063, 360.37479, 0.0),
+        [0.107416, -0.285425, -0.005807, -0.001530, 0.0],
+    ),
+    "ros_equidistant_ost.yaml": (
+        "camera_info",
+        EQUIDISTANT,
+        (1280, 720),
+        (638.0064, 638.9817, 633.75963, 369.88374, 1.0591),
+        [-0.019592, -0.056248, 0.075002, -0.043589],
+    ),
+    "kalibr_camchain_equi.yaml": (
+        "kalibr",
+        EQUIDISTANT,
+        (640, 480),
+        (277.95596230891084, 278.4167467580337, 315.5269754313737, 244.46893770533453, 0.0),
+        [-0.005908650672531068, 0.01587953759563821, -0.024196671184075886, 0.015501252412920248],
+    ),
+    "opencv_left_intrinsics.yml": (
+        "opencv",
+        PLUMB_BOB,
+        (640, 480),
+        (535.91573396163199, 535.91573396163199, 342.28315473308373, 235.57082909788173, 0.0),
+        [
+            -0.26637260909660682,
+            -0.038588898922304653,
+            0.0017831947042852964,
+            -0.00028122100441115472,
+            0.23839153080878486,
+        ],
+    ),
+}
+
+
+def _assert_reads_as(found, source_format, model, size, fx_fy_cx_cy_skew, dist):
+    cam = found.camera
+    assert (found.source_format, cam.model, cam.image_size) == (source_format, model, size)
+    np.testing.assert_allclose(
+        [cam.fx, cam.fy, cam.cx, cam.cy, cam.K[0, 1]], fx_fy_cx_cy_skew, rtol=0, atol=1e-12
+    )
+    np.testing.assert_allclose(cam.dist, dist, rtol=0, atol=1e-15)
+
+
+@needs_reference
+@pytest.mark.parametrize("name", sorted(REFERENCE_FILES))
+def test_real_calibration_files_load_with_their_model(name):
+    _assert_reads_as(read_camera_file(REFERENCE / name), *REFERENCE_FILES[name])
+
+
+@needs_reference
+def test_a_kalibr_chain_with_an_omni_camera_is_refused_naming_it():
+    with pytest.raises(InputError, match=r"cam1: camera_model 'omni' is not supported"):
+        load_camera(REFERENCE / "kalibr_wiki_camchain_omni.yaml")
+
+
+def _calibration_sample(path: Path, camera: CameraModel, *, old_keys=False, fisheye=False):
+    """What OpenCV's camera_calibration tutorial sample saves (XML by default)."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    keys = ("image_Width", "image_Height", "Camera_Matrix", "Distortion_Coefficients")
+    if not old_keys:
+        keys = ("image_width", "image_height", "camera_matrix", "distortion_coefficients")
+    fs.write("calibration_time", "Tue Dec  1 20:00:00 2026")
+    fs.write("nr_of_frames", 25)
+    fs.write(keys[0], camera.width)
+    fs.write(keys[1], camera.height)
+    fs.write("board_width", 9)
+    fs.write("board_height", 6)
+    fs.write("square_size", 50.0)
+    fs.write("flags", 0)
+    if not old_keys:
+        fs.write("fisheye_model", int(fisheye))
+    fs.write(keys[2], camera.K)
+    fs.write(keys[3], camera.dist.reshape(-1, 1))
+    fs.write("avg_reprojection_error", 0.31)
+    fs.release()
+
+
+@pytest.mark.parametrize("suffix", [".xml", ".yml"])
+@pytest.mark.parametrize("model", [PLUMB_BOB, EQUIDISTANT])
+def test_opencv_calibration_sample_output(tmp_path, suffix, model):
+    cam = CAMERAS[model]
+    path = tmp_path / f"out_camera_data{suffix}"
+    _calibration_sample(path, cam, fisheye=model == EQUIDISTANT)
+    found = read_camera_file(path)
+    assert found.source_format == ("opencv_xml" if suffix == ".xml" else "opencv")
+    _assert_same(cam, found.camera)  # fisheye_model: 1 is equidistant, never plumb_bob
+
+
+@pytest.mark.parametrize("suffix", [".xml", ".yml"])
+def test_opencv_calibration_sample_old_key_names(tmp_path, suffix):
+    cam = CAMERAS[PLUMB_BOB]
+    path = tmp_path / f"out_camera_data{suffix}"
+    _calibration_sample(path, cam, old_keys=True)
+    _assert_same(cam, load_camera(path))
+
+
+def test_kalibr_camchain_with_a_yaml_directive(tmp_path):
+    cam = CAMERAS[EQUIDISTANT]
+    chain = {
+        "cam0": {
+            "camera_model": "pinhole",
+            "intrinsics": [cam.fx, cam.fy, cam.cx, cam.cy],
+            "distortion_model": "equidistant",
+            "distortion_coeffs": [float(x) for x in cam.dist],
+            "resolution": [cam.width, cam.height],
+        }
+    }
+    path = tmp_path / "camchain.yaml"
+    path.write_text("%YAML:1.0\n---\n" + yaml.safe_dump(chain))
+    found = read_camera_file(path)
+    assert found.source_format == "kalibr"
+    _assert_same(cam, found.camera)
+
+
+@pytest.mark.parametrize("writer", [write_camera_info, write_opencv, write_kalibr])
+@pytest.mark.parametrize("model", [PLUMB_BOB, EQUIDISTANT])
+def test_every_writer_reads_back(tmp_path, writer, model):
+    cam = CAMERAS[model]
+    if writer is write_kalibr and model == PLUMB_BOB:  # radtan: k1, k2, p1, p2 and no k3
+        cam = CameraModel(cam.width, cam.height, cam.K, np.append(cam.dist[:4], 0.0), model)
+    path = tmp_path / "camera.yaml"
+    writer(path, cam)
+    _assert_same(cam, load_camera(path))
+
+
+def test_kalibr_cannot_state_a_k3(tmp_path):
+    with pytest.raises(InputError, match="radtan takes k1, k2, p1, p2"):
+        write_kalibr(tmp_path / "camchain.yaml", CAMERAS[PLUMB_BOB])
+
+
+_ROS = "image_width: 640\nimage_height: 480\ncamera_matrix: {data: [500,0,320,0,500,240,0,0,1]}\n"
+
+
+@pytest.mark.parametrize(
+    "text,expect",
+    [
+        (_ROS + "distortion_model: double_sphere\n", "'double_sphere' is not supported"),
+        (
+            _ROS + "distortion_model: plumb_bob\ndistortion_coefficients: {data: [0,0,0,0,0,0]}\n",
+            "6 coefficients is not supported",
+        ),
+        (
+            _ROS + "distortion_model: equidistant\ndistortion_coefficients: {data: [0,0,0,0,0]}\n",
+            "takes 4 coefficients k1..k4, has 5",
+        ),
+        (
+            "cam0: {camera_model: ds, intrinsics: [0.5, 0.6, 300, 300, 320, 240], "
+            "resolution: [640, 480]}\n",
+            "camera_model 'ds' is not supported",
+        ),
+        (
+            "cam0: {camera_model: pinhole, intrinsics: [300, 300, 320, 240], "
+            "distortion_model: fov, distortion_coeffs: [0.9], resolution: [640, 480]}\n",
+            "'fov' is not supported",
+        ),
+        ("cam1: {camera_model: pinhole}\n", "has no 'cam0'"),
+        ("%YAML", "not a readable OpenCV FileStorage YAML"),
+        ("%YAML:1.0\n---\n" + "[" * 5000 + "]" * 5000 + "\n", "OpenCV FileStorage"),
+        ("a: " + "[" * 5000 + "]" * 5000 + "\n", "not valid YAML"),
+        ("<?xml version='1.0'?>\n<opencv_storage><a>", "OpenCV FileStorage XML"),
+        (_ROS.replace("500,0,320", "1e308,0,320"), "focal lengths"),
+        (_ROS.replace("image_width: 640", "image_width: -640"), "image_width"),
+        (_ROS.replace("image_width: 640", "image_width: .inf"), "image_width"),
+        (_ROS.replace("0,0,1]", "0,0,2]"), "0 0 1"),
+        (_ROS.replace("320", "1e9"), "principal point"),
+    ],
+)
+def test_unusable_camera_files_are_refused_naming_why(tmp_path, text, expect):
+    path = tmp_path / "cam.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=expect) as info:
+        load_camera(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_camera_file_bytes_that_are_not_utf8_or_too_many(tmp_path):
+    path = tmp_path / "cam.yaml"
+    path.write_bytes(b"image_width: 640\n\xff\n")
+    with pytest.raises(InputError, match="not UTF-8"):
+        load_camera(path)
+    path.write_bytes(b"#" * (MAX_CAMERA_FILE_BYTES + 1))
+    with pytest.raises(InputError, match="not a camera file"):
+        load_camera(path)
+    with pytest.raises(InputError, match="is a folder"):
+        load_camera(tmp_path)
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(
+    head=st.sampled_from(["", "%YAML:1.0\n---\n", "<?xml version='1.0'?>\n", "cam0:\n  ", "%YAML"]),
+    body=st.text(max_size=200),
+)
+def test_camera_reader_fuzz_raises_only_input_error(tmp_path_factory, head, body):
+    path = tmp_path_factory.mktemp("fuzz") / "cam.yaml"
+    path.write_text(head + body, encoding="utf-8", errors="surrogatepass")
+    try:
+        load_camera(path)
+    except InputError as exc:
+        assert str(path) in str(exc)

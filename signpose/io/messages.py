@@ -145,6 +145,16 @@ def message_frame_id(msg: Any) -> str | None:
     return frame_id if isinstance(frame_id, str) and frame_id else None
 
 
+_JPEG_START = b"\xff\xd8"
+_JPEG_END = b"\xff\xd9"
+
+
+def is_cut_jpeg(buf: np.ndarray) -> bool:
+    """A JPEG whose end-of-image marker is missing (libjpeg would decode it with gray rows)."""
+    data = buf.tobytes()
+    return data[:2] == _JPEG_START and not data.rstrip(b"\x00").endswith(_JPEG_END)
+
+
 _RAW_CHANNELS = {"mono8": 1, "8uc1": 1, "bgr8": 3, "rgb8": 3, "8uc3": 3, "bgra8": 4, "rgba8": 4}
 
 
@@ -161,6 +171,8 @@ def image_from_message(schema_name: str, msg: Any) -> tuple[np.ndarray | None, s
             return None, f"bad image data ({exc})"
         if buf.size == 0:
             return None, "empty image data"
+        if is_cut_jpeg(buf):
+            return None, "JPEG data ends without its end-of-image marker (cut short)"
         img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
         if img is None:
             return None, f"cannot decode {_get(msg, 'format', '?')} image"

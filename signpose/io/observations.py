@@ -17,6 +17,11 @@ from signpose.core.fileio import atomic_write
 from signpose.frontend.observations import DEFAULT_SIGMA_PX, FrameObservations, SignObservation
 from signpose.frontend.sign import ALL_CODES, KEYPOINT_NAMES
 
+# Ranges a reader accepts (a number outside is a damaged file, not an observation).
+MAX_STAMP_NS = 2**63 - 1  # int64, as every log and container stores time
+MAX_IMAGE_SIDE_PX = 100_000
+MAX_FRAME_INDEX = 2**53
+
 
 def _num(x) -> float:
     return round(float(x), 4)
@@ -55,13 +60,29 @@ def frame_to_json(obs: FrameObservations) -> str:
     return json.dumps(frame_to_dict(obs), separators=(", ", ": "))
 
 
+def _finite(value, where: str) -> float:
+    """A JSON number as a finite float; ValueError otherwise (bools and strings too)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{where} must be a number")
+    x = float(value)  # OverflowError for a huge int: caught by the line reader
+    if not math.isfinite(x):
+        raise ValueError(f"{where} is not finite")
+    return x
+
+
+def _whole(value, where: str, low: int, high: int) -> int:
+    """A JSON whole number in [low, high]; ValueError otherwise."""
+    if isinstance(value, float) and math.isfinite(value) and value == int(value):
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ValueError(f"{where} must be a whole number in {low}..{high}")
+    return value
+
+
 def _pair(value, where: str) -> tuple[float, float]:
     if not isinstance(value, list | tuple) or len(value) != 2:
         raise ValueError(f"{where} must be [u, v]")
-    u, v = float(value[0]), float(value[1])
-    if not (math.isfinite(u) and math.isfinite(v)):
-        raise ValueError(f"{where} is not finite")
-    return (u, v)
+    return (_finite(value[0], where), _finite(value[1], where))
 
 
 def _optional_fields(
@@ -116,39 +137,67 @@ def frame_from_dict(d: dict) -> FrameObservations:
         if bbox is not None:
             if not isinstance(bbox, list) or len(bbox) != 4:
                 raise ValueError(f"sign #{i + 1}: bbox_px must be [x, y, w, h]")
-            bbox = tuple(float(v) for v in bbox)
-        sigma = float(s.get("sigma_px", DEFAULT_SIGMA_PX))
-        if not math.isfinite(sigma) or sigma <= 0:
+            bbox = tuple(_finite(v, f"sign #{i + 1}: bbox_px") for v in bbox)
+        sigma = _finite(s.get("sigma_px", DEFAULT_SIGMA_PX), f"sign #{i + 1}: sigma_px")
+        if sigma <= 0:
             raise ValueError(f"sign #{i + 1}: sigma_px must be > 0")
-        score = float(s.get("score", 1.0))
+        score = _finite(s.get("score", 1.0), f"sign #{i + 1}: score")
         erased, kp_sigma = _optional_fields(s, i, keypoints)
         signs.append(SignObservation(code, keypoints, bbox, sigma, score, erased, kp_sigma))
     return FrameObservations(
-        frame=int(d["frame"]),
-        stamp_ns=int(d["stamp_ns"]),
-        image_size=(int(size[0]), int(size[1])),
+        frame=_whole(d["frame"], "frame", 0, MAX_FRAME_INDEX),
+        stamp_ns=_whole(d["stamp_ns"], "stamp_ns", 0, MAX_STAMP_NS),
+        image_size=(
+            _whole(size[0], "image_size width", 1, MAX_IMAGE_SIDE_PX),
+            _whole(size[1], "image_size height", 1, MAX_IMAGE_SIDE_PX),
+        ),
         signs=tuple(signs),
     )
 
 
+def _parse_line(raw: bytes) -> FrameObservations:
+    """One line's bytes; ValueError (or one of the errors below) says what is wrong."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"byte {exc.start} is not UTF-8 text") from None
+    return frame_from_dict(json.loads(text))
+
+
 def iter_observations(path: str | Path) -> Iterator[FrameObservations]:
-    """Yield the frames of an observations file; InputError names the bad line."""
+    """Yield the frames of an observations file; InputError names the bad line.
+
+    Frames must be in time order with unique stamps (as signpose writes them):
+    a stamp that is not after the previous line's is refused with both line
+    numbers, never sorted silently.
+    """
     p = Path(path)
     try:
-        handle = p.open(encoding="utf-8")
+        handle = p.open("rb")
     except FileNotFoundError:
         raise InputError(f"{p}: observations file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a folder; pass the observations file") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot read observations file ({exc.strerror})") from None
+    previous: tuple[int, int] | None = None  # (line, stamp_ns)
     with handle:
         for lineno, line in enumerate(handle, start=1):
             if not line.strip():
                 continue
             try:
-                yield frame_from_dict(json.loads(line))
-            except (ValueError, TypeError) as exc:
+                obs = _parse_line(line)
+            except (ValueError, TypeError, OverflowError, RecursionError) as exc:
                 msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 raise InputError(f"{p}: line {lineno}: malformed observation ({msg})") from None
+            if previous is not None and obs.stamp_ns <= previous[1]:
+                how = "repeats" if obs.stamp_ns == previous[1] else "is before"
+                raise InputError(
+                    f"{p}: line {lineno}: stamp_ns {obs.stamp_ns} {how} line {previous[0]}'s "
+                    f"{previous[1]}; frames must be in time order with unique stamps"
+                )
+            previous = (lineno, obs.stamp_ns)
+            yield obs
 
 
 def read_observations(path: str | Path) -> list[FrameObservations]:

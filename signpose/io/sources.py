@@ -32,6 +32,7 @@ from signpose.io.messages import (
     MessageLog,
     camera_from_message,
     image_from_message,
+    is_cut_jpeg,
     message_frame_id,
     message_stamp_ns,
 )
@@ -46,6 +47,9 @@ VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".m4v", ".webm", ".mpg", ".mpe
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
 MCAP_SUFFIXES = (".mcap",)
 TIMES_CSV_NAMES = ("frames.csv", "times.csv")
+# Consecutive failed reads after which a video is taken to end: OpenCV's decoders
+# resynchronise after a damaged region within a few reads (7 in a damaged H.264 file).
+MAX_FAILED_READS = 50
 
 
 @dataclass(frozen=True)
@@ -156,23 +160,17 @@ class VideoSource(FrameSource):
 
     def _read(self) -> Iterator[Frame]:
         cap = cv2.VideoCapture(str(self.path))
+        index = 0
+        damaged = _DamagedReads()
         try:
-            index = 0
             last_ns = -1
-            while True:
+            while damaged.run <= MAX_FAILED_READS:
                 ok, image = cap.read()
-                if not ok or image is None:
-                    break
-                ms = cap.get(cv2.CAP_PROP_POS_MSEC)
-                if math.isfinite(ms) and ms >= 0:
-                    stamp_ns = int(round(ms * 1e6))
-                elif self.fps > 0:
-                    stamp_ns = int(round(index / self.fps * 1e9))
-                else:
-                    stamp_ns = last_ns + 1
-                if stamp_ns <= last_ns:  # containers without times: keep stamps increasing
-                    stamp_ns = int(round(index / self.fps * 1e9)) if self.fps > 0 else last_ns + 1
-                    stamp_ns = max(stamp_ns, last_ns + 1)
+                if not ok or image is None:  # damage, or the end: read on a little to tell
+                    damaged.failed(index)
+                    continue
+                damaged.recovered()
+                stamp_ns = self._stamp_ns(cap, index + damaged.skipped, last_ns)
                 last_ns = stamp_ns
                 yield Frame(index, stamp_ns, image)
                 index += 1
@@ -180,11 +178,54 @@ class VideoSource(FrameSource):
             cap.release()
         if index == 0:
             raise InputError(f"{self.path}: video has no readable frames")
-        if self.length is not None and index < self.length:
+        if damaged.skipped:
             self._problem(
-                f"video stopped at frame {index} of {self.length} "
+                f"{damaged.skipped} unreadable frame(s) skipped in {damaged.regions} damaged "
+                f"region(s), the first after frame {damaged.first_after}; read on past them"
+            )
+        if self.length is not None and index + damaged.skipped < self.length:
+            self._problem(
+                f"video stopped at frame {index + damaged.skipped} of {self.length} "
                 f"(the decoder could not read further; truncated or corrupt file)"
             )
+
+    def _stamp_ns(self, cap: cv2.VideoCapture, position: int, last_ns: int) -> int:
+        """The container's time of the frame just read; position / fps where it has none."""
+        ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+        if math.isfinite(ms) and ms >= 0:
+            stamp_ns = int(round(ms * 1e6))
+        elif self.fps > 0:
+            stamp_ns = int(round(position / self.fps * 1e9))
+        else:
+            stamp_ns = last_ns + 1
+        if stamp_ns <= last_ns:  # containers without times: keep stamps increasing
+            stamp_ns = int(round(position / self.fps * 1e9)) if self.fps > 0 else last_ns + 1
+            stamp_ns = max(stamp_ns, last_ns + 1)
+        return stamp_ns
+
+
+class _DamagedReads:
+    """Failed reads of a video: runs of them, and how many were followed by good frames."""
+
+    def __init__(self) -> None:
+        self.run = 0  # failed reads since the last good frame
+        self.skipped = 0  # failed reads that good frames followed
+        self.regions = 0
+        self.first_after: int | None = None  # good frames before the first damaged region
+        self._run_after = 0  # good frames before the current run of failed reads
+
+    def failed(self, frames_so_far: int) -> None:
+        if self.run == 0:
+            self._run_after = frames_so_far
+        self.run += 1
+
+    def recovered(self) -> None:
+        if self.run:
+            self.skipped += self.run
+            self.regions += 1
+            if self.first_after is None:
+                self.first_after = self._run_after
+        self.run = 0
 
 
 def _unopenable_reason(path: Path) -> str:
@@ -231,6 +272,12 @@ class FolderSource(FrameSource):
             self.items = [(p, int(round(i / fps * 1e9))) for i, p in enumerate(files)]
         elif csv_path is not None:
             self.items = _read_times_csv(csv_path, {p.name: p for p in files})
+            unlisted = sorted(set(files) - {p for p, _ in self.items}, key=files.index)
+            if unlisted:
+                self._note(
+                    f"{len(unlisted)} image(s) not listed in {csv_path.name} are left out "
+                    f"(first: {unlisted[0].name})"
+                )
         else:
             raise InputError(
                 f"{path}: no frame times; add frames.csv (columns filename,stamp_ns) or pass --fps"
@@ -240,9 +287,9 @@ class FolderSource(FrameSource):
     def _read(self) -> Iterator[Frame]:
         index = 0
         for p, stamp_ns in self.items:
-            image = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            image, reason = _read_image(p)
             if image is None:
-                self._problem(f"{p.name}: cannot read image; skipped")
+                self._problem(f"{p.name}: {reason}; skipped")
                 continue
             if image.ndim == 3 and image.shape[2] == 4:
                 image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
@@ -254,14 +301,42 @@ class FolderSource(FrameSource):
             raise InputError(f"{self.path}: none of the images could be read")
 
 
+def _read_image(p: Path) -> tuple[np.ndarray | None, str]:
+    """The image at ``p``, or (None, why not); a JPEG cut short is refused, not half-read."""
+    try:
+        data = np.frombuffer(p.read_bytes(), dtype=np.uint8)
+    except OSError as exc:
+        return None, f"cannot read image ({exc.strerror})"
+    if data.size == 0:
+        return None, "empty image file"
+    if is_cut_jpeg(data):
+        return None, "JPEG ends without its end-of-image marker (cut short)"
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    return (image, "") if image is not None else (None, "cannot read image")
+
+
 def _read_times_csv(csv_path: Path, files: dict[str, Path]) -> list[tuple[Path, int]]:
+    """(image, stamp_ns) in time order; a name or a stamp listed twice is refused."""
     items = []
+    line_of_name: dict[str, int] = {}
+    line_of_stamp: dict[int, int] = {}
     for row in read_frames_csv(csv_path):
-        p = files.get(Path(row.filename).name)
+        name = Path(row.filename).name
+        p = files.get(name)
+        where = f"{csv_path}: line {row.line}"
         if p is None:
+            raise InputError(f"{where}: image {row.filename!r} is not in the folder")
+        if name in line_of_name:
             raise InputError(
-                f"{csv_path}: line {row.line}: image {row.filename!r} is not in the folder"
+                f"{where}: image {name!r} is listed again (first on line {line_of_name[name]})"
             )
+        if row.stamp_ns in line_of_stamp:
+            raise InputError(
+                f"{where}: stamp_ns {row.stamp_ns} repeats line {line_of_stamp[row.stamp_ns]}'s; "
+                "every frame needs its own time"
+            )
+        line_of_name[name] = row.line
+        line_of_stamp[row.stamp_ns] = row.line
         items.append((p, row.stamp_ns))
     items.sort(key=lambda item: item[1])
     return items

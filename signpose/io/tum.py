@@ -15,14 +15,19 @@ from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write
 from signpose.estimator.trajectory import Trajectory
 
+# Larger numbers are damage, not data: 1e12 s is 31,000 years, 1e12 m far past the Moon.
+MAX_ABS_VALUE = 1e12
+
 
 def read_tum(path: str | Path) -> Trajectory:
     """Read a TUM file; InputError names the file and line on failure."""
     p = Path(path)
     try:
-        lines = p.read_text(encoding="utf-8").splitlines()
+        lines = p.read_bytes().decode("utf-8").splitlines()
     except FileNotFoundError:
         raise InputError(f"{p}: trajectory file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a folder; pass the trajectory file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{p}: cannot read trajectory file ({exc})") from None
     rows = []
@@ -37,8 +42,10 @@ def read_tum(path: str | Path) -> Trajectory:
             row = [float(x) for x in parts]
         except ValueError:
             raise InputError(f"{p}: line {lineno}: not a number") from None
-        if not np.all(np.isfinite(row)) or np.linalg.norm(row[4:]) < 1e-9:
-            raise InputError(f"{p}: line {lineno}: non-finite value or zero quaternion")
+        if not all(abs(v) <= MAX_ABS_VALUE for v in row):  # also NaN and inf
+            raise InputError(f"{p}: line {lineno}: a value is not finite or beyond 1e12")
+        if np.linalg.norm(row[4:]) < 1e-9:
+            raise InputError(f"{p}: line {lineno}: zero quaternion")
         rows.append(row)
     if not rows:
         raise InputError(f"{p}: trajectory file has no poses")
