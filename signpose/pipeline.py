@@ -72,6 +72,12 @@ MIN_PREDICTED_DEPTH_M = 0.5
 # A reading within this many predicted diameters of a tracked sign's predicted
 # centre is at that sign's place (signs on a pylon are several diameters apart).
 CODE_CHANGED_RADIUS = 0.5
+# The prediction (from a pose a frame or two old) is first moved by its median
+# offset to the readings of the predicted codes within this many diameters
+# [1]; it is trusted when the readings then lie within PREDICTION_AGREES
+# diameters of it (median) [1].
+MAX_PREDICTION_SHIFT = 8.0
+PREDICTION_AGREES = 0.25
 # A reading of a code seen twice agrees with the frame when the frame's PnP
 # with it reprojects within this [px] RMS (as ``max_track_rms_px``).
 DUPLICATE_MAX_RMS_PX = 4.0
@@ -320,10 +326,15 @@ class FrameTracker:
             None  # (position, world_T_cam) of the last frame
         )
         self._before_last: np.ndarray | None = None  # the pose of the frame before it
-        self._last_full = -settings.track_refresh_frames  # position of the last full search
+        # Positions of the last full search finished and of the last refresh
+        # planned (frames in flight may be refreshing already).
+        self._last_full = self._last_refresh = -settings.track_refresh_frames
 
     def plan(self, position: int) -> FramePlan:
-        """The search of the frame at ``position`` (0 = the first frame of the flight)."""
+        """The search of the frame at ``position`` (0 = the first frame of the flight).
+
+        Called once per frame, in order (it remembers the refreshes it plans).
+        """
         if not self.tracking or self._last is None:
             return FramePlan()
         last_position, world_T_cam = self._last
@@ -331,7 +342,10 @@ class FrameTracker:
         predictions = predict_signs(
             self.sign_map, self.camera, predicted_T, self.codes, self.settings.prediction_margin
         )
-        refresh = position - self._last_full >= self.settings.track_refresh_frames
+        since = position - max(self._last_full, self._last_refresh)
+        refresh = since >= self.settings.track_refresh_frames
+        if refresh:
+            self._last_refresh = position
         return FramePlan(tuple(predictions), refresh)
 
     def finish(
@@ -407,11 +421,16 @@ def refuse_changed_codes(
 ) -> tuple[FrameObservations, list[RefusedObservation]]:
     """Refuse readings at a tracked sign's predicted place that give another code.
 
-    A reading whose centre lies within ``CODE_CHANGED_RADIUS`` predicted
-    diameters of a predicted sign, nearer to it than to any predicted sign
-    of its own code, is that sign misread (an occluder took a slot): it is
-    refused with ``code_changed``, never taken for another sign of the map.
+    The prediction comes from an earlier pose and may be shifted in the
+    image: it is first moved by the median offset between the predicted and
+    the read centres of the codes read where they were predicted, and used
+    only when that leaves them within ``PREDICTION_AGREES`` diameters. Then a
+    reading within ``CODE_CHANGED_RADIUS`` predicted diameters of a predicted
+    sign, nearer to it than to any predicted sign of its own code, is that
+    sign misread (an occluder took a slot): refused with ``code_changed``,
+    never taken for another sign of the map.
     """
+    predictions = _aligned(obs, predictions)
     kept, refused = [], []
     for sign in obs.signs:
         near = _nearest_prediction(sign, predictions)
@@ -426,6 +445,32 @@ def refuse_changed_codes(
     if not refused:
         return obs, []
     return _with_signs(obs, kept), refused
+
+
+def _aligned(
+    obs: FrameObservations, predictions: tuple[PredictedSign, ...]
+) -> tuple[PredictedSign, ...]:
+    """The predictions moved onto the frame's readings, or () when they do not fit it."""
+    by_code = {p.code: p for p in predictions}
+    pairs = [
+        (np.subtract(s.center_px, by_code[s.code].center_px), by_code[s.code].diameter_px)
+        for s in obs.signs
+        if s.code in by_code
+        and math.dist(s.center_px, by_code[s.code].center_px)
+        <= MAX_PREDICTION_SHIFT * by_code[s.code].diameter_px
+    ]
+    if len(pairs) < 2:
+        return ()
+    offsets = np.array([d for d, _ in pairs])
+    shift = np.median(offsets, axis=0)
+    misfit = [np.hypot(*(d - shift)) / diam for d, diam in pairs]
+    if float(np.median(misfit)) > PREDICTION_AGREES:
+        return ()
+    du, dv = float(shift[0]), float(shift[1])
+    return tuple(
+        PredictedSign(p.code, (p.center_px[0] + du, p.center_px[1] + dv), p.diameter_px)
+        for p in predictions
+    )
 
 
 def _nearest_prediction(

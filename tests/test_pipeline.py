@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import simulate_tiny, truth_detector
-from signpose.frontend.observations import FrameObservations
+from signpose.frontend.detector import PredictedSign
+from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose import pipeline
@@ -183,9 +184,92 @@ def test_plots_from_fake_data(tmp_path):
     assert not (tmp_path / "none.png").exists()
 
 
-def test_run_with_the_real_detector(tmp_path):
+@pytest.fixture(scope="module")
+def real_flight(tmp_path_factory):
+    """A few 960x540 frames, big enough for the trained cascade and the decoder."""
+    return simulate_tiny_size(tmp_path_factory.mktemp("real"), frames=8, width=960, height=540)
+
+
+def test_observations_are_byte_identical_for_any_worker_count(real_flight, tmp_path):
+    sign_map = load_map(bundled_map_path())
+    written = {}
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}.jsonl"
+        result = pipeline.observe(
+            open_source(real_flight.frames_path),
+            sign_map,
+            real_flight.camera,
+            pipeline.ObserveSettings(workers=workers),
+            progress=False,
+            out_path=out,
+        )
+        written[workers] = out.read_bytes()
+        # Tracking ran (the lag between a pose and the frame it predicts matters).
+        assert result.tracked_frames >= 2
+    assert written[1] == written[2]
+
+
+def _sign(code: str, u: float, v: float) -> SignObservation:
+    return SignObservation(code, {"center": (u, v)}, (u - 20, v - 20, 40, 40))
+
+
+def test_another_code_at_a_tracked_signs_place_is_refused():
+    predictions = (
+        PredictedSign("0101", (100.0, 100.0), 40.0),
+        PredictedSign("0011", (300.0, 100.0), 40.0),
+        PredictedSign("1100", (200.0, 300.0), 40.0),
+    )
+    # The image moved by (30, -20) px since the pose that predicted it.
+    frame = FrameObservations(
+        3,
+        0,
+        (640, 480),
+        (
+            _sign("0111", 132.0, 79.0),  # where 0101 is: a slot misread
+            _sign("0011", 330.0, 80.0),
+            _sign("1100", 230.0, 280.0),
+            _sign("1001", 500.0, 300.0),  # nobody predicted it: kept
+        ),
+    )
+    kept, refused = pipeline.refuse_changed_codes(frame, predictions)
+    assert [s.code for s in kept.signs] == ["0011", "1100", "1001"]
+    assert [(r.reason, r.observation.code, r.other_code) for r in refused] == [
+        (pipeline.RefusalReason.CODE_CHANGED, "0111", "0101")
+    ]
+    assert refused[0].to_json()["reason"] == "code_changed"
+    assert refused[0].other_px == (130.0, 80.0)  # the prediction moved onto the frame
+    # Predictions the frame's readings do not confirm are not used to refuse anything.
+    scattered = FrameObservations(
+        3, 0, (640, 480), (frame.signs[0], _sign("0011", 331.0, 81.0), _sign("1100", 150.0, 330.0))
+    )
+    assert pipeline.refuse_changed_codes(scattered, predictions)[1] == []
+
+
+def test_a_code_seen_twice_keeps_the_reading_the_frames_pose_agrees_with(tiny_flight):
+    sign_map = load_map(bundled_map_path())
+    frame = truth_detector(tiny_flight).detect(None, sign_map.codes)
+    signs = sorted(frame.detections, key=lambda s: s.code)
+    assert len(signs) >= 4
+    true, elsewhere = signs[0], signs[-1]
+    # A misreading: the last sign read with the first sign's code.
+    fake = SignObservation(true.code, elsewhere.keypoints_px, elsewhere.bbox_px)
+    obs = FrameObservations(0, 0, (320, 240), (fake, *signs[:-1]))
+    kept, refused = pipeline.settle_duplicate_codes(obs, sign_map, tiny_flight.camera)
+    assert [s.code for s in kept.signs] == [s.code for s in signs[:-1]]
+    assert true in kept.signs and fake not in kept.signs
+    assert [(r.reason, r.observation) for r in refused] == [
+        (pipeline.RefusalReason.DUPLICATE_CODE, fake)
+    ]
+    assert refused[0].other_px == true.center_px  # both places are reported
+    # Without a map there is no pose to ask: both readings are refused.
+    kept, refused = pipeline.settle_duplicate_codes(obs, None, None)
+    assert true.code not in {s.code for s in kept.signs}
+    assert len(refused) == 2 and all(r.other_px is None for r in refused)
+
+
+def test_run_with_the_real_detector(real_flight, tmp_path):
     """End to end with the trained cascade and the decoder on a few 960x540 frames."""
-    sim = simulate_tiny_size(tmp_path / "flight", frames=4, width=960, height=540)
+    sim = real_flight
     sign_map = load_map(bundled_map_path())
     result = pipeline.run(
         sim.frames_path,
@@ -197,7 +281,7 @@ def test_run_with_the_real_detector(tmp_path):
         progress=False,
     )
     frames = read_observations(tmp_path / "run" / "observations.jsonl")
-    assert len(frames) == 4
+    assert len(frames) == 8
     assert all(len(f.signs) >= 3 for f in frames)
     assert all(s.code in sign_map.codes for f in frames for s in f.signs)
     assert result.coverage["pnp"] == pytest.approx(1.0)
