@@ -33,6 +33,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--format", choices=FORMATS, default="mp4")
     parser.add_argument("--dirt", action="store_true")
     parser.add_argument("--occlusion", action="store_true")
+    parser.add_argument(
+        "--hard", action="store_true", help="every real-pylon condition on (SimSettings.hard)"
+    )
     parser.add_argument("--json", help="also write the numbers to this JSON file")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
@@ -45,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
         dirt=args.dirt,
         occlusion=args.occlusion,
     )
+    if args.hard:
+        settings = settings.hard()
     with tempfile.TemporaryDirectory(prefix="bench_simulate_") as tmp:
         t0, c0 = time.perf_counter(), time.process_time()
         result = simulate(sign_map, tmp, settings, progress=False)
@@ -53,7 +58,8 @@ def main(argv: list[str] | None = None) -> int:
             1024 * 1024
         )
     print(
-        f"simulate: {result.n_frames} frames {args.width}x{args.height} {args.format} "
+        f"simulate{' --hard' if args.hard else ''}: {result.n_frames} frames "
+        f"{args.width}x{args.height} {args.format} "
         f"(cv2 threads {cv2.getNumThreads()}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']})"
     )
     print(f"total {total:.1f} s, {result.n_frames / total:.2f} frames/s, output {size_mb:.1f} MB")
@@ -67,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
             "format": args.format,
             "dirt": args.dirt,
             "occlusion": args.occlusion,
+            "hard": args.hard,
             "wall_s": round(total, 3),
             "cpu_s": round(cpu, 3),
             "frames_per_s": round(result.n_frames / total, 3),

@@ -517,3 +517,16 @@ def test_bad_condition_settings_raise_input_error(demo_map, tmp_path):
     ):
         with pytest.raises(InputError):
             bad.validate()
+
+
+def test_cli_simulate_conditions(tmp_path, capsys):
+    out = tmp_path / "hard"
+    args = ["simulate", "--out", str(out), "--frames", "2", "--width", "320", "--height", "180"]
+    assert main(args + ["--format", "png", "--quiet", "--hard", "--jpeg-range", "75,76"]) == 0
+    frames = read_frame_truths(out / "boxes.jsonl")
+    assert {f.conditions.jpeg_quality for f in frames} <= {75, 76}
+    with pytest.raises(SystemExit) as info:
+        main(args + ["--jpeg-range", "high"])
+    assert info.value.code == 2
+    assert main(args + ["--members", "2"]) == 2  # InputError: a share is at most 1
+    assert "members" in capsys.readouterr().err

@@ -9,6 +9,14 @@ OpenCV axes (x right, y down, z forward). Time: frame ``i`` is at
 ``i / fps`` seconds, ``stamp_ns = round(i * 1e9 / fps)``; the exposure is
 centred on the stamp.
 
+Conditions: every real-pylon condition is off by default (a default flight
+renders as it always did) and switchable in ``SimSettings``; ``hard()`` turns
+them all on at the ``HARD`` rates. Scene conditions (members and conductors in
+front of signs, insulator strings, faded or dirty faces, glare, photographs)
+are described in ``signpose.sim.scene``, per-frame ones (JPEG 70-90,
+vibration bursts, exposure steps) in ``signpose.sim.conditions``; what each
+frame and sign got is in ``boxes.jsonl``.
+
 Output folder (``simulate``):
     video.mp4, frames/ or flight.mcap the frames (``signpose.sim.writers``)
     camera.yaml                      ROS camera_info (``signpose.io.camera_file``)

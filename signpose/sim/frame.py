@@ -143,6 +143,21 @@ def _project_sign(
     )
 
 
+def _lines_in_box(
+    lines: list[ProjectedLine], lo: np.ndarray, hi: np.ndarray
+) -> list[ProjectedLine]:
+    """The lines with a segment whose box, grown by the line's width, meets [lo, hi) [px]."""
+    out = []
+    for ln in lines:
+        a, b = ln.points_px[:-1], ln.points_px[1:]
+        pad = ln.widths_px[:, None] + 1.0
+        seg_lo = np.minimum(a, b) - pad
+        seg_hi = np.maximum(a, b) + pad
+        if np.any(np.all((seg_lo < hi) & (seg_hi > lo), axis=1)):
+            out.append(ln)
+    return out
+
+
 def _coverage(
     camera: CameraModel,
     world_T_cam: np.ndarray,
@@ -163,12 +178,15 @@ def _coverage(
     if shape[0] <= 0 or shape[1] <= 0:
         return {}, ()
     off = lo.astype(float)
+    near = {kind: _lines_in_box(lines, lo, hi) for kind, lines in in_front.items()}
+    if not projected.occluders_px and not any(near.values()):
+        return {name: 0.0 for name in s.parts_m or {}}, ()
     disc = np.zeros(shape, np.float32)
     fill_polygon_aa(disc, projected.disc_px - off, 1.0, TRUTH_SUPERSAMPLE)
     masks = {"bar": np.zeros(shape, np.float32)}
     for poly, _ in projected.occluders_px:
         fill_polygon_aa(masks["bar"], poly - off, 1.0, TRUTH_SUPERSAMPLE)
-    for kind, lines in in_front.items():
+    for kind, lines in near.items():
         masks[kind] = line_coverage(lines, off, shape) if lines else np.zeros(shape, np.float32)
     clear = np.ones(shape, np.float32)
     for m in masks.values():
