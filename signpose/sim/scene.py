@@ -49,6 +49,10 @@ MEMBER_WIDTH_M = (0.06, 0.12)  # angle steel L60..L120
 MEMBER_HALF_LENGTH_M = 1.5  # well past the disc: the member crosses the rim
 CONDUCTOR_FRONT_M = (2.0, 8.0)  # extra conductors: distance in front of the face [m]
 CONDUCTOR_FRONT_WIDTH_M = (0.02, 0.03)
+CONDUCTOR_FRONT_SAG_M = (1.0, 2.5)
+CONDUCTOR_FRONT_HALF_SPAN_M = 60.0
+GLINT_TIP_DEG = (5.0, 25.0)  # angle between a face's normal and where it mirrors the sun
+GLARE_RADIUS_R = (0.2, 0.45)  # highlight radius, in disc radii
 FADE_RANGE = (0.15, 0.5)
 GLARE_PEAK_DN = (60.0, 160.0)
 # Glare strength is peak * max(0, glint . view)^GLARE_SHARPNESS: a lobe of ~10 deg.
@@ -297,27 +301,30 @@ def _front_conductors(sign_map: SignMap, n: int, rng: np.random.Generator) -> li
     for _ in range(n):
         mid = center + rng.uniform(*CONDUCTOR_FRONT_M) * facing
         mid[2] = rng.uniform(z.min() - 0.5, z.max() + 0.5)
-        sag = rng.uniform(1.0, 2.5)
-        lift = np.array([0.0, 0.0, sag])
-        points = catenary(mid - 60.0 * right + lift, mid + 60.0 * right + lift, sag, 240)
+        sag = rng.uniform(*CONDUCTOR_FRONT_SAG_M)
+        half = CONDUCTOR_FRONT_HALF_SPAN_M * right
+        lift = np.array([0.0, 0.0, sag])  # the lowest point, mid span, at ``mid``
+        points = catenary(mid - half + lift, mid + half + lift, sag, 240)
         out.append(Line3D(points, float(rng.uniform(*CONDUCTOR_FRONT_WIDTH_M)), CONDUCTOR_BGR))
     return out
 
 
 def _glare(s: SignModel, R: np.ndarray, rng: np.random.Generator) -> FaceGlare:
+    """A highlight on the face of ``s`` whose glint tips 5-25 deg off the face normal."""
     r = s.diameter_m / 2.0
     off = rng.uniform(-0.5, 0.5, 2) * r
-    axis = R[:, 0] * math.cos(a := rng.uniform(0, 2 * np.pi)) + R[:, 1] * math.sin(a)
-    tip = math.radians(rng.uniform(5.0, 25.0))
+    azimuth = rng.uniform(0, 2 * np.pi)  # in the face's plane: the way the glint tips
+    axis = R[:, 0] * math.cos(azimuth) + R[:, 1] * math.sin(azimuth)
+    tip = math.radians(rng.uniform(*GLINT_TIP_DEG))
     return FaceGlare(
         center_m=s.center_m + R[:, :2] @ off,
-        radius_m=float(rng.uniform(0.2, 0.45) * r),
+        radius_m=float(rng.uniform(*GLARE_RADIUS_R) * r),
         glint=math.cos(tip) * R[:, 2] + math.sin(tip) * axis,
         peak_dn=float(rng.uniform(*GLARE_PEAK_DN)),
     )
 
 
-def _conditions(
+def _face_conditions(
     signs: tuple[SignModel, ...], sign_map: SignMap, options: SceneOptions, seed: int
 ) -> tuple[tuple[SignModel, ...], list[Line3D]]:
     """Signs with fading and glare as ``options`` ask, and the members in front of them."""
@@ -375,7 +382,7 @@ def build_scene(
     # Faces weather and catch the sun differently (own stream: other draws stay put).
     shades = np.random.default_rng([seed, 4242]).uniform(0.85, 1.08, len(signs))
     signs = tuple(replace(s, shade=float(f)) for s, f in zip(signs, shades, strict=True))
-    signs, members = _conditions(signs, sign_map, options, seed)
+    signs, members = _face_conditions(signs, sign_map, options, seed)
     behind: tuple[Line3D, ...] = ()
     front: tuple[Line3D, ...] = ()
     if options.background:
