@@ -1,5 +1,6 @@
 """Camera files in three formats, projection and undistortion."""
 
+import json
 from pathlib import Path
 
 import cv2
@@ -19,6 +20,7 @@ from signpose.estimator.camera import (
     undistort_px,
 )
 
+from signpose.cli import main as cli_main
 from signpose.core.errors import InputError
 from signpose.io.camera_file import (
     MAX_CAMERA_FILE_BYTES,
@@ -306,7 +308,7 @@ def test_every_writer_reads_back(tmp_path, writer, model):
 
 
 def test_kalibr_cannot_state_a_k3(tmp_path):
-    with pytest.raises(InputError, match="radtan takes k1, k2, p1, p2"):
+    with pytest.raises(InputError, match=r"camchain.yaml: Kalibr radtan takes k1, k2, p1, p2"):
         write_kalibr(tmp_path / "camchain.yaml", CAMERAS[PLUMB_BOB])
 
 
@@ -379,3 +381,30 @@ def test_camera_reader_fuzz_raises_only_input_error(tmp_path_factory, head, body
         load_camera(path)
     except InputError as exc:
         assert str(path) in str(exc)
+
+
+def test_camera_command_prints_what_it_read_and_converts(tmp_path, capsys):
+    cam = CAMERAS[EQUIDISTANT]
+    src = tmp_path / "ost.yaml"
+    write_camera_info(src, cam)
+    assert cli_main(["camera", str(src)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == {
+        "model": "equidistant",
+        "width": 1920,
+        "height": 1080,
+        "fx": 1210.5,
+        "fy": 1208.75,
+        "cx": 955.25,
+        "cy": 541.5,
+        "skew": 0.0,
+        "distortion": [0.04, -0.012, 0.003, -0.0007],
+        "source_format": "camera_info",
+    }
+    out = tmp_path / "camchain.yaml"
+    assert cli_main(["camera", str(src), "--to", "kalibr", "--out", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["source_format"] == "camera_info"
+    assert read_camera_file(out).source_format == "kalibr"
+    _assert_same(cam, load_camera(out))
+    assert cli_main(["camera", str(src), "--to", "opencv"]) == 2
+    assert "--to and --out go together" in capsys.readouterr().err

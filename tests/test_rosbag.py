@@ -17,12 +17,18 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+from mcap.stream_reader import StreamReader
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
+from signpose.estimator.camera import CameraModel
+from signpose.estimator.trajectory import Trajectory, rotation_from_quat_xyzw
+from signpose.frontend.observations import FrameObservations
+from signpose.maps.loader import bundled_map_path, load_map
 
-from signpose.core.errors import InputError
+from signpose.core.errors import InputError, OutputError
 from signpose.io.frames_csv import FrameStamp, write_frames_csv
 from signpose.io.rosbag import read_bag_info
+from signpose.io.rosbag_write import ResultBag, write_result_bag
 from signpose.io.sources import BagSource, FolderSource, open_source
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
@@ -340,3 +346,111 @@ def test_split_bag_reads_every_file_in_order(tmp_path):
     frames = list(source)
     for got, want in zip(frames, images, strict=True):
         np.testing.assert_array_equal(got.image, want)
+
+
+# --------------------------------------------------------------------------- ROS 2 out
+
+
+def _result_inputs(n: int = 4):
+    sign_map = load_map(bundled_map_path())
+    stamps_ns = _stamps(n)
+    frames = tuple(FrameObservations(i, t, (64, 48), ()) for i, t in enumerate(stamps_ns))
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = np.arange(n) * 0.5
+    T[:, 1, 3] = 20.0
+    T[:, :3, :3] = rotation_from_quat_xyzw(np.array([[0.1, -0.2, 0.3, 0.9]]))[0]
+    bad = T.copy()
+    bad[1, :3, 3] = np.nan  # a frame without an estimate
+    stamps_s = np.array(stamps_ns) / 1e9
+    trajectories = {
+        "baseline": Trajectory.from_matrices(stamps_s, bad),
+        "smoothed": Trajectory.from_matrices(stamps_s, T),
+    }
+    camera = CameraModel(64, 48, np.array([[60.0, 0, 31.5], [0, 61.0, 23.5], [0, 0, 1]]),
+                         np.array([0.01, -0.002, 0.0, 0.0, 0.0]))  # fmt: skip
+    return ResultBag(sign_map, frames, trajectories, camera, FRAME_ID), T, stamps_ns
+
+
+def _assert_pose(pose, T):
+    p, q = pose.position, pose.orientation
+    np.testing.assert_allclose([p.x, p.y, p.z], T[:3, 3], rtol=0, atol=1e-12)
+    R = rotation_from_quat_xyzw(np.array([[q.x, q.y, q.z, q.w]]))[0]
+    np.testing.assert_allclose(R, T[:3, :3], rtol=0, atol=1e-12)
+
+
+def test_result_bag_reads_back_with_rosbags(tmp_path):
+    bag, T, stamps_ns = _result_inputs()
+    path = write_result_bag(tmp_path / "result_bag", bag)
+    meta = _metadata(path)["rosbag2_bagfile_information"]
+    assert meta["storage_identifier"] == "mcap"
+    by_topic: dict[str, list] = {}
+    with Reader(path) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        for conn, log_ns, raw in reader.messages():
+            msg = STORE.deserialize_cdr(raw, conn.msgtype)
+            by_topic.setdefault(conn.topic, []).append((log_ns, msg))
+    assert types == {
+        "/signpose/baseline/pose": "geometry_msgs/msg/PoseStamped",
+        "/signpose/smoothed/pose": "geometry_msgs/msg/PoseStamped",
+        "/signpose/baseline/path": "nav_msgs/msg/Path",
+        "/signpose/smoothed/path": "nav_msgs/msg/Path",
+        "/tf": "tf2_msgs/msg/TFMessage",
+        "/signpose/signs": "visualization_msgs/msg/MarkerArray",
+        "/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+    }
+    world = bag.sign_map.frame
+    smoothed = by_topic["/signpose/smoothed/pose"]
+    assert [t for t, _ in smoothed] == stamps_ns  # epoch stamps, not 1970
+    for (t, msg), want in zip(smoothed, T, strict=True):
+        assert (msg.header.frame_id, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec) == (
+            world,
+            t,
+        )
+        _assert_pose(msg.pose, want)
+    baseline = by_topic["/signpose/baseline/pose"]
+    assert [t for t, _ in baseline] == [stamps_ns[0], *stamps_ns[2:]]  # NaN frame left out
+    ((_, path_msg),) = by_topic["/signpose/smoothed/path"]
+    assert len(path_msg.poses) == 4 and path_msg.header.frame_id == world
+    _assert_pose(path_msg.poses[3].pose, T[3])
+    tfs = by_topic["/tf"]
+    assert len(tfs) == 4
+    for (_, msg), want in zip(tfs, T, strict=True):
+        (tf,) = msg.transforms
+        assert (tf.header.frame_id, tf.child_frame_id) == (world, FRAME_ID)
+        tr = tf.transform.translation
+        np.testing.assert_allclose([tr.x, tr.y, tr.z], want[:3, 3], rtol=0, atol=1e-12)
+    ((_, markers),) = by_topic["/signpose/signs"]
+    texts = sorted(m.text for m in markers.markers if m.text)
+    assert texts == sorted(bag.sign_map.codes)
+    assert len(markers.markers) == 2 * len(bag.sign_map.signs)
+    ((_, info),) = by_topic["/camera/camera_info"]
+    assert (info.width, info.height, info.header.frame_id) == (64, 48, FRAME_ID)
+    np.testing.assert_array_equal(info.k.reshape(3, 3), bag.camera.K)
+    np.testing.assert_array_equal(info.d, bag.camera.dist)
+
+
+def test_result_bag_mcap_has_the_ros2_profile(tmp_path):
+    bag, _, _ = _result_inputs(2)
+    path = write_result_bag(tmp_path / "result_bag", bag)
+    (mcap_file,) = path.glob("*.mcap")
+    with open(mcap_file, "rb") as f:
+        header = next(r for r in StreamReader(f).records if type(r).__name__ == "Header")
+    assert header.profile == "ros2"
+
+
+def test_result_bag_replaces_an_older_one_whole(tmp_path):
+    bag, _, _ = _result_inputs(3)
+    target = tmp_path / "result_bag"
+    write_result_bag(target, bag)
+    (target / "stale.txt").write_text("from an older run")
+    write_result_bag(target, bag)
+    assert sorted(p.name for p in target.iterdir()) == ["metadata.yaml", "result_bag.mcap"]
+    assert [p.name for p in tmp_path.iterdir()] == ["result_bag"]  # no temporary left
+
+
+def test_result_bag_in_a_folder_that_cannot_be_written(tmp_path):
+    bag, _, _ = _result_inputs(2)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(OutputError, match=str(blocker / "result_bag")):
+        write_result_bag(blocker / "result_bag", bag)

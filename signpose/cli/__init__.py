@@ -19,6 +19,7 @@ from signpose.frontend.sign import ALL_CODES
 # Subcommand modules, in the order `signpose --help` lists them.
 COMMANDS = (
     "sign",
+    "camera",
     "simulate",
     "decode",
     "detect",

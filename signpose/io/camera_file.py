@@ -435,15 +435,15 @@ def kalibr_dict(camera: CameraModel) -> dict:
     """A one-camera Kalibr camchain for ``camera``.
 
     Raises:
-        InputError: the camera has skew or more than radtan's 4 coefficients +
+        ValueError: the camera has skew or more than radtan's 4 coefficients +
             k3 = 0, which a Kalibr pinhole camera cannot state.
     """
     dist = [float(x) for x in camera.dist.reshape(-1)]
     if camera.K[0, 1] != 0:
-        raise InputError("a Kalibr pinhole camera has no skew; this camera's is not 0")
+        raise ValueError("a Kalibr pinhole camera has no skew; this camera's is not 0")
     if camera.model == PLUMB_BOB:
         if any(dist[4:]):
-            raise InputError("Kalibr radtan takes k1, k2, p1, p2; this camera has more terms")
+            raise ValueError("Kalibr radtan takes k1, k2, p1, p2; this camera has more terms")
         dist, model = dist[:4], "radtan"
     else:
         model = "equidistant"
@@ -459,7 +459,14 @@ def kalibr_dict(camera: CameraModel) -> dict:
 
 
 def write_kalibr(path: str | Path, camera: CameraModel) -> None:
-    """Write ``camera`` as a Kalibr camchain YAML (atomically); see ``kalibr_dict``."""
-    chain = kalibr_dict(camera)
+    """Write ``camera`` as a Kalibr camchain YAML (atomically).
+
+    Raises:
+        InputError: naming ``path``, when Kalibr cannot state the camera (``kalibr_dict``).
+    """
+    try:
+        chain = kalibr_dict(camera)
+    except ValueError as exc:
+        raise _fail(Path(path), str(exc)) from None
     with atomic_write(path) as f:
         yaml.safe_dump(chain, f, sort_keys=False, default_flow_style=None)

@@ -31,6 +31,7 @@ from signpose.io.foxglove import (
     scene_update,
     schema_text,
 )
+from signpose.io.tracks import pose_tracks
 from signpose.maps.loader import SignMap
 
 JSON_ENCODING = "json"
@@ -211,6 +212,7 @@ def write_result_mcap(
     images: Iterable[tuple[int, np.ndarray]] | None = None,
     jpeg_quality: int = 85,
     progress: bool = False,
+    camera_frame: str = CAMERA_FRAME,
 ) -> None:
     """The result log for Foxglove, written atomically.
 
@@ -225,49 +227,33 @@ def write_result_mcap(
         images: (stamp_ns, image) pairs, written as JPEG foxglove.CompressedImage.
         jpeg_quality: JPEG quality of the images.
         progress: show a tqdm bar over frames.
+        camera_frame: the input's camera frame id (the /tf child and the images' frame).
     """
 
     world = sign_map.frame
     t0 = frames[0].stamp_ns if frames else 0
     tf_name = "smoothed" if "smoothed" in trajectories else next(iter(trajectories), None)
-    by_stamp: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for name, traj in trajectories.items():
-        Ts = traj.world_T_cam()
-        ok = np.all(np.isfinite(Ts.reshape(len(Ts), -1)), axis=1)
-        by_stamp[name] = (np.round(traj.stamps_s[ok] * 1e9).astype(np.int64), Ts[ok])
+    tracks = pose_tracks(trajectories)
     image_iter = iter(images) if images is not None else None
     with McapJsonWriter(path) as writer:
         writer.write(SCENE_TOPIC, "SceneUpdate", scene_update(t0, sign_map, trajectories), t0)
         if camera is not None:
-            writer.write(CALIBRATION_TOPIC, "CameraCalibration", camera_calibration(t0, camera), t0)
+            calibration = camera_calibration(t0, camera, camera_frame)
+            writer.write(CALIBRATION_TOPIC, "CameraCalibration", calibration, t0)
         for obs in tqdm(frames, desc="result.mcap", unit="frame", disable=not progress):
             t = obs.stamp_ns
             if image_iter is not None:
                 item = next(image_iter, None)
                 if item is not None:
-                    msg = compressed_image(item[0], item[1], quality=jpeg_quality)
+                    msg = compressed_image(item[0], item[1], camera_frame, jpeg_quality)
                     writer.write(IMAGE_TOPIC, "CompressedImage", msg, item[0])
             writer.write(ANNOTATIONS_TOPIC, "ImageAnnotations", image_annotations(obs), t)
-            for name, (stamps_ns, poses) in by_stamp.items():
-                T = _nearest(stamps_ns, poses, t)
+            for name, track in tracks.items():
+                T = track.at(t)
                 if T is None:
                     continue
                 writer.write(f"/signpose/{name}/pose", "PoseInFrame", pose_in_frame(t, world, T), t)
                 if name == tf_name:
                     writer.write(
-                        TF_TOPIC, "FrameTransforms", frame_transforms(t, world, CAMERA_FRAME, T), t
+                        TF_TOPIC, "FrameTransforms", frame_transforms(t, world, camera_frame, T), t
                     )
-
-
-def _nearest(stamps_ns: np.ndarray, poses: np.ndarray, stamp_ns: int, tol_ns: int = 1_000_000):
-    """The pose at ``stamp_ns`` (within ``tol_ns``: stamps went through seconds), or None."""
-    if len(stamps_ns) == 0:
-        return None
-    i = int(np.searchsorted(stamps_ns, stamp_ns))
-    best = None
-    for j in (i - 1, i):
-        if 0 <= j < len(stamps_ns):
-            dt = abs(int(stamps_ns[j]) - int(stamp_ns))
-            if dt <= tol_ns and (best is None or dt < best[0]):
-                best = (dt, j)
-    return None if best is None else poses[best[1]]
