@@ -151,3 +151,14 @@ def test_photo_background_falls_back_without_photographs(monkeypatch):
     monkeypatch.setattr(crops, "available_photos", lambda: ())
     crop = render_crop("0101", np.random.default_rng(0), sign_px=40, background="photo")
     assert crop.conditions["background"] == "clutter"
+
+
+@pytest.mark.parametrize("condition", crops.CROP_CONDITIONS)
+def test_every_crop_condition_renders_and_occluders_are_reported(condition):
+    rng = np.random.default_rng(11)
+    crop = render_crop("1101", rng, sign_px=50, **crops.crop_condition(condition, rng))
+    assert crop.image.shape == (75, 75)  # 50 px and a quarter of it on each side
+    kinds = {"member": ("member",), "conductor": ("conductor",), "insulator": ("insulator",)}
+    assert crop.occluders == kinds.get(condition, ())
+    with pytest.raises(ValueError, match="condition"):
+        crops.crop_condition("fog", rng)

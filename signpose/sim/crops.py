@@ -49,6 +49,22 @@ BACKGROUNDS: tuple[str, ...] = ("plain", "sky", "lattice", "lines", "ground", "c
 PHOTO_BACKGROUND = "photo"
 PHOTO_FALLBACK = "clutter"
 
+# One name per real-pylon condition, for evaluations that report per condition;
+# ``crop_condition`` gives the ``render_crop`` options of each.
+CROP_CONDITIONS: tuple[str, ...] = (
+    "clean",
+    "member",
+    "conductor",
+    "insulator",
+    "photo",
+    "jpeg",
+    "faded",
+    "dirty",
+    "glare",
+    "vibration",
+    "exposure",
+)
+
 # Gray levels of the printed face before exposure (contrast/brightness).
 BLACK_LEVEL = 28.0
 WHITE_LEVEL = 232.0
@@ -527,3 +543,34 @@ def render_crop(
         part_cover=part_cover,
         occluders=tuple(b.kind for b in bands),
     )
+
+
+def crop_condition(name: str, rng: np.random.Generator) -> dict:
+    """``render_crop`` options for condition ``name`` of ``CROP_CONDITIONS``, drawn from ``rng``.
+
+    ``member``, ``conductor`` and ``insulator`` put one occluder of that kind in
+    front of the sign (see ``SynthCrop.covered_slots`` for what it covers);
+    ``photo`` a photograph behind it; ``jpeg`` a round trip at quality 70-90;
+    ``faded`` paint faded by 0.15-0.5; ``dirty`` stains; ``glare`` a highlight
+    of 60-160 grey levels; ``vibration`` a 3-12 px motion blur; ``exposure``
+    contrast 0.5-0.8 and brightness -60..60.
+    """
+    if name not in CROP_CONDITIONS:
+        raise ValueError(f"unknown condition {name!r}: use one of {', '.join(CROP_CONDITIONS)}")
+    draws = {
+        "clean": lambda: {},
+        "member": lambda: {"member": True},
+        "conductor": lambda: {"power_line": True},
+        "insulator": lambda: {"insulator": True},
+        "photo": lambda: {"background": PHOTO_BACKGROUND},
+        "jpeg": lambda: {"jpeg_quality": int(rng.integers(70, 91))},
+        "faded": lambda: {"fade": float(rng.uniform(0.15, 0.5))},
+        "dirty": lambda: {"dirt": True},
+        "glare": lambda: {"glare_dn": float(rng.uniform(60.0, 160.0))},
+        "vibration": lambda: {"blur_px": float(rng.uniform(3.0, 12.0))},
+        "exposure": lambda: {
+            "contrast": float(rng.uniform(0.5, 0.8)),
+            "brightness": float(rng.uniform(-60.0, 60.0)),
+        },
+    }
+    return draws[name]()
