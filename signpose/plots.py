@@ -1,30 +1,41 @@
-"""Result plots as PNG (matplotlib, Agg backend), each written atomically.
+"""Result plots as PNG (matplotlib's object API on the Agg canvas), each written atomically.
 
 World frame: the map's, z up, metres. Trajectories are ``world_T_cam`` per
 stamp; frames without an estimate carry NaN positions and leave gaps.
+
+Thread safety: every figure is a ``matplotlib.figure.Figure`` with its own
+``FigureCanvasAgg``; pyplot's global figure registry and backend switch are
+never touched, so two flights in one Dask worker process (several threads)
+each draw their own figures. The object API alone is not enough: matplotlib
+keeps one mathtext parser per process (log-axis tick labels such as
+``$\\mathdefault{10^{-2}}$`` go through it) and it fails with
+``ParseException`` / ``IndexError`` when two threads lay out text at once.
+So the steps that lay out and render text (``tight_layout`` and ``savefig``)
+hold ``_RENDER_LOCK``; building the artists runs in parallel.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
-
-from signpose.core.fileio import atomic_path  # noqa: E402
+from signpose.core.fileio import atomic_path
 from signpose.estimator.trajectory import Trajectory
-from signpose.maps.loader import SignMap  # noqa: E402
+from signpose.maps.loader import SignMap
 
 _COLORS = {"groundtruth": "0.2", "baseline": "#d95319", "smoothed": "#0072bd"}
 _EXTRA = ("#77ac30", "#7e2f8e", "#edb120")
 SIGMA_BAND = 2.0  # bands are +-2 sigma
+DPI = 110  # PNG resolution [dots per inch]
+# Held while matplotlib lays out or renders text (its mathtext parser is one per process).
+_RENDER_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -53,12 +64,19 @@ def _color(name: str, i: int) -> str:
     return _COLORS.get(name, _EXTRA[i % len(_EXTRA)])
 
 
-def _save(fig, path: Path) -> Path:
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
-    finally:
-        plt.close(fig)
+def new_figure(figsize: tuple[float, float]) -> Figure:
+    """A figure on its own Agg canvas: no pyplot, no global state."""
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path: Path, *, tight: bool = True) -> Path:
+    """Lay out (``tight``) and write ``fig`` as PNG, atomically, under the render lock."""
+    with _RENDER_LOCK, atomic_path(path) as tmp:
+        if tight:
+            fig.tight_layout()
+        fig.savefig(tmp, dpi=DPI, format="png")
     return path
 
 
@@ -81,7 +99,7 @@ def _disc(center: np.ndarray, world_R_sign: np.ndarray | None, diameter: float) 
 
 def plot_trajectory_3d(path: str | os.PathLike, data: PlotData, method: str | None = None) -> Path:
     """The paper's Fig. 13: the trajectory in 3D coloured by time, with the signs."""
-    fig = plt.figure(figsize=(8, 7))
+    fig = new_figure((8, 7))
     ax = fig.add_subplot(projection="3d")
     names = list(data.trajectories)
     name = method or ("smoothed" if "smoothed" in names else (names[0] if names else None))
@@ -122,7 +140,7 @@ def plot_trajectory_3d(path: str | os.PathLike, data: PlotData, method: str | No
     ax.set_zlabel("z [m]")
     if data.groundtruth is not None:
         ax.legend(loc="upper left")
-    return _save(fig, Path(path))
+    return _save(fig, Path(path), tight=False)
 
 
 def plot_views(path: str | os.PathLike, data: PlotData) -> Path:
@@ -130,7 +148,7 @@ def plot_views(path: str | os.PathLike, data: PlotData) -> Path:
 
     The views are zoomed on the flight; the signs are in the 3D plot.
     """
-    fig = plt.figure(figsize=(13, 8))
+    fig = new_figure((13, 8))
     grid = fig.add_gridspec(3, 2, width_ratios=[1.0, 1.3])
     top = fig.add_subplot(grid[0:2, 0])
     side = fig.add_subplot(grid[2, 0])
@@ -189,7 +207,6 @@ def plot_views(path: str | os.PathLike, data: PlotData) -> Path:
     axes_t[0].set_title(f"position over time (bands: +-{SIGMA_BAND:g} sigma)")
     axes_t[0].legend(fontsize=8)
     axes_t[2].set_xlabel("time [s]")
-    fig.tight_layout()
     return _save(fig, Path(path))
 
 
@@ -220,7 +237,8 @@ def plot_errors(path: str | os.PathLike, data: PlotData) -> Path | None:
     """Position and rotation error over time against the ground truth (None without it)."""
     if data.groundtruth is None:
         return None
-    fig, (ax_p, ax_r) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    fig = new_figure((10, 6))
+    ax_p, ax_r = fig.subplots(2, 1, sharex=True)
     t0 = _t0(data)
     for i, (name, traj) in enumerate(data.trajectories.items()):
         t, dp, dr = pose_errors(traj, data.groundtruth)
@@ -237,13 +255,13 @@ def plot_errors(path: str | os.PathLike, data: PlotData) -> Path | None:
     for ax in (ax_p, ax_r):
         ax.grid(alpha=0.3)
     ax_p.legend(fontsize=8)
-    fig.tight_layout()
     return _save(fig, Path(path))
 
 
 def plot_signs_per_frame(path: str | os.PathLike, data: PlotData) -> Path:
     """Number of decoded map signs in every frame."""
-    fig, ax = plt.subplots(figsize=(10, 3.2))
+    fig = new_figure((10, 3.2))
+    ax = fig.subplots()
     t = data.frame_stamps_s - _t0(data)
     n = np.asarray(data.signs_per_frame)
     ax.step(t, n, where="mid", color="#0072bd", lw=1.0)
@@ -258,7 +276,6 @@ def plot_signs_per_frame(path: str | os.PathLike, data: PlotData) -> Path:
     ax.set_ylim(0, max(top, 1) + 0.5)
     ax.set_title(f"signs seen per frame (mean {float(n.mean()) if len(n) else 0.0:.1f})")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     return _save(fig, Path(path))
 
 
