@@ -25,11 +25,14 @@ from signpose.estimator.trajectory import Trajectory, rotation_from_quat_xyzw
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import bundled_map_path, load_map
 
+from signpose import pipeline
 from signpose.core.errors import InputError, OutputError
-from signpose.io.frames_csv import FrameStamp, write_frames_csv
+from signpose.io.frames_csv import FrameStamp, read_frames_csv, write_frames_csv
 from signpose.io.rosbag import read_bag_info
 from signpose.io.rosbag_write import ResultBag, write_result_bag
 from signpose.io.sources import BagSource, FolderSource, open_source
+from signpose.io.tum import read_tum
+from signpose.sim.flight import SimSettings, simulate
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
 IMAGE_TOPIC = "/camera/image_raw/compressed"
@@ -454,3 +457,61 @@ def test_result_bag_in_a_folder_that_cannot_be_written(tmp_path):
     blocker.write_text("")
     with pytest.raises(OutputError, match=str(blocker / "result_bag")):
         write_result_bag(blocker / "result_bag", bag)
+
+
+# --------------------------------------------------------------------------- end to end
+
+
+@pytest.fixture(scope="module")
+def jpeg_flight(tmp_path_factory):
+    """A simulated 960x540 flight as a folder of JPEGs, run once by the pipeline."""
+    root = tmp_path_factory.mktemp("jpeg_flight")
+    sign_map = load_map(bundled_map_path())
+    settings = SimSettings(frames=8, width=960, height=540, format="png")
+    sim = simulate(sign_map, root / "sim", settings, progress=False)
+    folder = root / "jpegs"
+    folder.mkdir()
+    rows, jpegs = [], []
+    for row in read_frames_csv(sim.frames_path / "frames.csv"):
+        image = cv2.imread(str(sim.frames_path / row.filename))
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 92])
+        assert ok
+        name = Path(row.filename).with_suffix(".jpg").name
+        (folder / name).write_bytes(buf.tobytes())
+        rows.append(FrameStamp(name, row.stamp_ns))
+        jpegs.append((row.stamp_ns, buf.reshape(-1)))
+    write_frames_csv(folder / "frames.csv", rows)
+    run_settings = pipeline.RunSettings(plots=False, mcap=False)
+    pipeline.run(folder, sign_map, root / "run", camera=sim.camera, settings=run_settings,
+                 progress=False)  # fmt: skip
+    return sim, jpegs, root / "run", run_settings
+
+
+def _jpeg_bag(path: Path, jpegs, storage: str, compression: str) -> Path:
+    writer = Writer(path, version=8, storage_plugin=STORAGES[storage])
+    if COMPRESSIONS[compression] is not None:
+        writer.set_compression(COMPRESSIONS[compression], CompressionFormat.ZSTD)
+    kind = "sensor_msgs/msg/CompressedImage"
+    with writer:
+        conn = writer.add_connection(IMAGE_TOPIC, kind, typestore=STORE)
+        for stamp_ns, data in jpegs:
+            msg = _msg(kind)(header=_header(stamp_ns), format="jpeg", data=data)
+            writer.write(conn, stamp_ns, STORE.serialize_cdr(msg, kind))  # frame 0 is at t = 0
+    return path
+
+
+@pytest.mark.parametrize("compression", sorted(COMPRESSIONS))
+@pytest.mark.parametrize("storage", sorted(STORAGES))
+def test_a_bag_runs_end_to_end_like_the_jpeg_folder(jpeg_flight, tmp_path, storage, compression):
+    sim, jpegs, folder_run, run_settings = jpeg_flight
+    bag = _jpeg_bag(tmp_path / "bag", jpegs, storage, compression)
+    out = tmp_path / "run"
+    result = pipeline.run(bag, load_map(bundled_map_path()), out, camera=sim.camera,
+                          settings=run_settings, progress=False)  # fmt: skip
+    assert result.n_frames == 8
+    observed = (out / "observations.jsonl").read_bytes()
+    assert observed == (folder_run / "observations.jsonl").read_bytes()
+    for method in ("baseline", "pnp", "smoothed"):
+        got, want = read_tum(out / f"{method}.tum"), read_tum(folder_run / f"{method}.tum")
+        np.testing.assert_array_equal(got.stamps_s, want.stamps_s)
+        np.testing.assert_allclose(got.world_t_cam, want.world_t_cam, rtol=0, atol=1e-6)
