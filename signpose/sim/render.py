@@ -146,6 +146,21 @@ def _value_noise(rng: np.random.Generator, shape: tuple[int, int], cells: list[i
     return out / total
 
 
+def _ray_grid(
+    K: np.ndarray, world_R_cam: np.ndarray, gu: np.ndarray, gv: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World directions (x, y, z), each (len(gv), len(gu)), of the pinhole rays through
+    the pixel grid ``gu`` x ``gv`` (not normalised: camera z component 1)."""
+    Ki = np.linalg.inv(K)
+    xc = (Ki[0, 0] * gu + Ki[0, 2])[None, :]
+    yc = (Ki[1, 1] * gv + Ki[1, 2])[:, None]
+    R = world_R_cam
+    dx = R[0, 0] * xc + R[0, 1] * yc + R[0, 2]
+    dy = R[1, 0] * xc + R[1, 1] * yc + R[1, 2]
+    dz = R[2, 0] * xc + R[2, 1] * yc + R[2, 2]
+    return dx, dy, dz
+
+
 class Backdrop:
     """Once-per-flight background layers: sky panorama, ground texture, noise bank.
 
@@ -207,13 +222,8 @@ class Backdrop:
         # nodes are placed so that resizing (mw, mh) -> (bw, bh) keeps them aligned.
         gu = (np.arange(mw, dtype=np.float64) + 0.5) * (bw / mw) * sc - 0.5
         gv = (np.arange(mh, dtype=np.float64) + 0.5) * (bh / mh) * sc - 0.5
-        Ki = np.linalg.inv(K)
         R = np.asarray(world_T_cam, dtype=np.float64)[:3, :3]
-        xc = (Ki[0, 0] * gu + Ki[0, 2])[None, :]
-        yc = (Ki[1, 1] * gv + Ki[1, 2])[:, None]
-        dx = R[0, 0] * xc + R[0, 1] * yc + R[0, 2]
-        dy = R[1, 0] * xc + R[1, 1] * yc + R[1, 2]
-        dz = R[2, 0] * xc + R[2, 1] * yc + R[2, 2]
+        dx, dy, dz = _ray_grid(K, R, gu, gv)
         horiz = np.sqrt(dx * dx + dy * dy) + 1e-12
         el = np.arctan2(dz, horiz)
         # Azimuth relative to the optical axis, so it is continuous across the image.
@@ -285,11 +295,8 @@ class PhotoBackdrop(Backdrop):
         mw, mh = -(-self.width // ms) + 1, -(-self.height // ms) + 1
         gu = np.linspace(-0.5, self.width - 0.5, mw)
         gv = np.linspace(-0.5, self.height - 0.5, mh)
-        Ki = np.linalg.inv(K)
         R = np.asarray(world_T_cam, dtype=np.float64)[:3, :3]
-        xc = (Ki[0, 0] * gu + Ki[0, 2])[None, :]
-        yc = (Ki[1, 1] * gv + Ki[1, 2])[:, None]
-        d = [R[k, 0] * xc + R[k, 1] * yc + R[k, 2] for k in range(3)]
+        d = _ray_grid(K, R, gu, gv)
         el = np.arctan2(d[2], np.hypot(d[0], d[1]))
         c0, s0 = math.cos(self.az0), math.sin(self.az0)
         az = np.arctan2(-s0 * d[0] + c0 * d[1], c0 * d[0] + s0 * d[1])

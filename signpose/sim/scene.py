@@ -38,7 +38,14 @@ from signpose.estimator.camera import CameraModel
 from signpose.frontend.sign import sign_keypoints, sign_shape
 from signpose.maps.loader import MapSign, SignMap
 from signpose.sim.photos import available_photos, load_photo
-from signpose.sim.pylon import CONDUCTOR_BGR, LATTICE_BGR, Line3D, catenary, pylon_lines
+from signpose.sim.pylon import (
+    CONDUCTOR_BGR,
+    LATTICE_BGR,
+    Line3D,
+    catenary,
+    pylon_lines,
+    segment,
+)
 from signpose.sim.render import Backdrop, PhotoBackdrop
 from signpose.sim.trajectories import site_frame
 
@@ -287,10 +294,8 @@ def _member(s: SignModel, R: np.ndarray, rng: np.random.Generator) -> Line3D:
     angle = rng.uniform(0, np.pi)
     along = MEMBER_HALF_LENGTH_M * np.array([math.cos(angle), math.sin(angle)])
     depth = rng.uniform(*MEMBER_DEPTH_M)
-    ends = [np.array([*(through + k * along), depth]) for k in (-1.0, 1.0)]
-    t = np.linspace(0.0, 1.0, 8)[:, None]
-    points = s.center_m + (ends[0] * (1 - t) + ends[1] * t) @ R.T
-    return Line3D(points, float(rng.uniform(*MEMBER_WIDTH_M)), LATTICE_BGR)
+    ends = [s.center_m + R @ np.array([*(through + k * along), depth]) for k in (-1.0, 1.0)]
+    return segment(ends[0], ends[1], float(rng.uniform(*MEMBER_WIDTH_M)), 8, LATTICE_BGR)
 
 
 def _front_conductors(sign_map: SignMap, n: int, rng: np.random.Generator) -> list[Line3D]:
