@@ -8,10 +8,17 @@ Fig. 13-like trajectory plot from the pipeline's run on a simulated
 climb-hover-depart flight. The report reads nothing but the JSON the steps
 write. A failing step is reported and the others go on.
 
-    .venv/bin/python scripts/reproduce_paper.py [--quick] [--out docs/results.md]
+    .venv/bin/python scripts/reproduce_paper.py [--quick] [--out docs]
         [--skip STEP ...] [--work DIR] [--report-only]
 
 ``--quick`` runs small versions of every step (a few minutes on two cores).
+
+Where the report goes: without ``--out``, into the work folder (a new
+temporary folder unless ``--work`` names one): ``results.md`` and
+``figures/fig13_trajectory.png`` there, and the committed ``docs/results.md``
+and its figure are left alone. ``--out docs`` (a folder: ``results.md`` in it)
+or ``--out docs/results.md`` (a ``.md`` file) regenerates the committed
+report; the figure goes into ``figures/`` beside the report.
 
 The report is built from one table, ``SECTIONS``: each section names the steps
 whose JSON it needs (each step carrying its command), a function from that JSON
@@ -50,7 +57,8 @@ from signpose.io.tum import read_tum
 
 REPO = Path(__file__).resolve().parent.parent
 SCRIPTS = REPO / "scripts"
-DEFAULT_OUT = REPO / "docs" / "results.md"
+DEFAULT_OUT = REPO / "docs" / "results.md"  # the committed report: only with --out
+REPORT_NAME = "results.md"  # the report's name in an --out folder and in the work folder
 FIGURE_NAME = "fig13_trajectory.png"
 FIGURE_REL = f"figures/{FIGURE_NAME}"  # relative to the report's folder
 STEPS_FILE = "steps.json"  # in the work folder: every step's status, for --report-only
@@ -1494,7 +1502,11 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small versions of every step")
     ap.add_argument(
-        "--out", type=Path, default=DEFAULT_OUT, help="report (default docs/results.md)"
+        "--out",
+        type=Path,
+        default=None,
+        help="the report: a .md file, or a folder for results.md (docs: the committed one); "
+        "default: results.md in the work folder",
     )
     ap.add_argument(
         "--skip",
@@ -1575,7 +1587,9 @@ def _meta(args: argparse.Namespace, out_path: Path) -> dict:
     cmd = ".venv/bin/python scripts/reproduce_paper.py"
     if args.quick:
         cmd += " --quick"
-    if out_path != DEFAULT_OUT.resolve():
+    if out_path == DEFAULT_OUT.resolve():
+        cmd += " --out docs"
+    elif args.out is not None:
         cmd += f" --out {args.out}"
     for s in args.skip:
         cmd += f" --skip {s}"
@@ -1596,15 +1610,23 @@ def _meta(args: argparse.Namespace, out_path: Path) -> dict:
 SAVED_META = ("date", "commit", "load_start", "load_end", "total_s")
 
 
+def report_path(out: Path | None, work: Path) -> Path:
+    """Where the report goes: ``out`` (a .md file, or a folder for results.md), else ``work``."""
+    if out is None:
+        return (work / REPORT_NAME).resolve()
+    out = out.resolve()
+    return out if out.suffix.lower() == ".md" else out / REPORT_NAME
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parse_args(argv)
     t_start = time.perf_counter()
     load_start = _load()
     commit = _git_head()  # what the steps run; others may commit while they do
-    out_path = args.out.resolve()
     work = args.work or Path(tempfile.mkdtemp(prefix="signpose-reproduce-"))
     ensure_dir(work)
     work = work.resolve()
+    out_path = report_path(args.out, work)
     fig_path = out_path.parent / "figures" / FIGURE_NAME
     print(f"work folder: {work}", flush=True)
     if args.report_only:
