@@ -20,7 +20,7 @@ from mcap.writer import Writer as McapWriter
 from signpose.estimator.camera import pinhole_camera
 
 from signpose.cli import main as cli_main
-from signpose.core.errors import InputError
+from signpose.core.errors import InputError, OutputError
 from signpose.io import mcap as mcap_io
 from signpose.io.camera_file import write_camera_info
 from signpose.io.frames_csv import FrameStamp, write_frames_csv
@@ -267,3 +267,20 @@ def test_video_is_read_past_a_damaged_region(tmp_path):
     stamps = [f.stamp_ns for f in frames]
     assert stamps == sorted(set(stamps))
     assert any("unreadable frame(s) skipped in 1 damaged region(s)" in p for p in source.problems)
+
+
+def test_a_full_disk_while_writing_mcap_names_the_file(tmp_path, monkeypatch):
+    import errno
+
+    from signpose.io import mcap_write
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    path = tmp_path / "result.mcap"
+    with mcap_io.McapJsonWriter(path) as writer:
+        monkeypatch.setattr(mcap_write.Writer, "add_message", full)
+        with pytest.raises(OutputError) as exc:
+            writer.write("/p", "PoseInFrame", mcap_io.pose_in_frame(0, "w", np.eye(4)), 0)
+    _assert_one_line_naming(exc, path, "No space left on device")
+    assert list(tmp_path.iterdir()) == []  # no partial file, no temporary

@@ -86,7 +86,11 @@ class McapJsonWriter:
         channel_id = self._channel(topic, schema_name)
         data = json.dumps(message, separators=(",", ":")).encode()
         t = max(0, int(log_time_ns))
-        self._writer.add_message(channel_id, t, data, t, self._sequence)
+        try:
+            self._writer.add_message(channel_id, t, data, t, self._sequence)
+        except OSError as exc:  # a full disk: the partial file goes, the message names ours
+            self.abort()
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
         self._sequence += 1
 
     def close(self) -> None:
@@ -100,6 +104,8 @@ class McapJsonWriter:
         except BaseException as exc:
             self._file.close()
             self._stack.__exit__(type(exc), exc, exc.__traceback__)
+            if isinstance(exc, OSError):
+                raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
             raise
         self._stack.close()
 

@@ -129,7 +129,10 @@ def read_bag_info(folder: str | os.PathLike) -> BagInfo:
         return _info_from_files(folder)
     try:
         doc = yaml.safe_load(path.read_bytes().decode("utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
+    except yaml.MarkedYAMLError as exc:
+        line = exc.problem_mark.line + 1 if exc.problem_mark is not None else "?"
+        raise _metadata_fail(path, f"not readable YAML (line {line}: {exc.problem})") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError, RecursionError) as exc:
         raise _metadata_fail(path, f"not readable YAML ({type(exc).__name__})") from None
     info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
     if not isinstance(info, dict):
@@ -301,6 +304,10 @@ class Db3Log:
                     "SELECT id, name, type, serialization_format FROM topics ORDER BY id"
                 ).fetchall()
         except sqlite3.DatabaseError as exc:
+            if self._cut_note is not None:
+                raise InputError(
+                    f"{self.path}: {self._cut_note}, before its first message; nothing to read"
+                ) from None
             raise InputError(
                 f"{self.path}: not a readable rosbag2 sqlite3 file ({exc}); "
                 "check the file or record the bag again"
