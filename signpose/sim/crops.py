@@ -552,7 +552,7 @@ def crop_condition(name: str, rng: np.random.Generator) -> dict:
     front of the sign (see ``SynthCrop.covered_slots`` for what it covers);
     ``photo`` a photograph behind it; ``jpeg`` a round trip at quality 70-90;
     ``faded`` paint faded by 0.15-0.5; ``dirty`` stains; ``glare`` a highlight
-    of 60-160 grey levels; ``vibration`` a 3-12 px motion blur; ``exposure``
+    of 40-120 grey levels; ``vibration`` a 3-12 px motion blur; ``exposure``
     contrast 0.5-0.8 and brightness -60..60.
     """
     if name not in CROP_CONDITIONS:
@@ -566,7 +566,7 @@ def crop_condition(name: str, rng: np.random.Generator) -> dict:
         "jpeg": lambda: {"jpeg_quality": int(rng.integers(70, 91))},
         "faded": lambda: {"fade": float(rng.uniform(0.15, 0.5))},
         "dirty": lambda: {"dirt": True},
-        "glare": lambda: {"glare_dn": float(rng.uniform(60.0, 160.0))},
+        "glare": lambda: {"glare_dn": float(rng.uniform(40.0, 120.0))},
         "vibration": lambda: {"blur_px": float(rng.uniform(3.0, 12.0))},
         "exposure": lambda: {
             "contrast": float(rng.uniform(0.5, 0.8)),
