@@ -50,6 +50,7 @@ from signpose.estimator.status import (
     classify,
     worst_axis_sigma,
 )
+from signpose.estimator.tuning import MotionChoice, TuningSettings, tune_motion_prior
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 
@@ -82,6 +83,10 @@ class EstimatorSettings:
             tests (30 deg lens, 6-7 signs per frame). They stay in the report.
         outliers: the innovation test against the neighbours' prediction.
         status: when a pose is ``weak`` or ``suspect``.
+        tune_motion: choose the motion prior's densities from the flight
+            (held-out frames, ``estimator.tuning``) instead of the smoother
+            settings' fixed values.
+        tuning: the candidates and the hold-out.
         final_kernel: the kernel of the final solve after the Huber rounds:
             ``"tukey"`` (redescending), ``"gnc"`` (truncated least squares by
             graduated non-convexity) or ``"huber"`` (no final solve). Tukey:
@@ -99,6 +104,8 @@ class EstimatorSettings:
     gate_px: float = 30.0
     outliers: OutlierSettings = field(default_factory=OutlierSettings)
     status: StatusSettings = field(default_factory=StatusSettings)
+    tune_motion: bool = True
+    tuning: TuningSettings = field(default_factory=TuningSettings)
     final_kernel: str = TUKEY
 
     def to_dict(self) -> dict:
@@ -200,6 +207,7 @@ class EstimateResult:
         settings: the settings used.
         outliers: the outlier report (empty when the smoother did not run).
         timing_s: stage -> seconds.
+        motion: the motion prior chosen from the flight, or None.
     """
 
     methods: dict[str, MethodEstimate]
@@ -208,6 +216,7 @@ class EstimateResult:
     settings: EstimatorSettings
     outliers: OutlierReport
     timing_s: dict[str, float]
+    motion: MotionChoice | None = None
 
 
 # A per-frame pose spends six of its residuals' degrees of freedom on itself.
@@ -427,6 +436,7 @@ class _SmoothedRun:
     downweighted: tuple[Outlier, ...]
     misdecoded: tuple[Misdecode, ...]
     rejected: tuple[Rejection, ...]
+    motion: MotionChoice | None
     timing_s: dict[str, float]
 
 
@@ -572,6 +582,15 @@ def _smoothed(
     causal = r
     active = ~gated
     r, by_innovation = _innovation_rounds(p, r, active)
+    motion = None
+    if s.tune_motion:
+        kept = _subset(meas, active)
+        motion = tune_motion_prior(
+            kept, stamps, r.world_T_cam, camera, s.smoother, p.default, s.tuning
+        )
+        p = replace(p, s=replace(s, smoother=motion.settings))
+        if s.final_kernel == HUBER:  # no final solve to carry the chosen prior
+            r = smooth_batch(kept, stamps, list(r.world_T_cam), camera, motion.settings, p.default)
     r, by_kernel = _final_solve(p, r, active)
     timing = {"smoothed": time.perf_counter() - t0, "sigmas": r.sigma_seconds}
     status = _smoothed_status(_subset(meas, active), r, camera, s.status)
@@ -584,6 +603,7 @@ def _smoothed(
         downweighted=down,
         misdecoded=mis,
         rejected=tuple(rejected + by_innovation + by_kernel),
+        motion=motion,
         timing_s=timing,
     )
 
@@ -633,11 +653,13 @@ def estimate_trajectories(
     down: tuple[Outlier, ...] = ()
     mis: tuple[Misdecode, ...] = ()
     rejected_obs: tuple[Rejection, ...] = ()
+    motion = None
     if "smoothed" in wanted:
         run = _smoothed(frames, sign_map, camera, s, per_frame, progress)
         methods.update(run.methods)
         timing.update(run.timing_s)
         down, mis, rejected_obs = run.downweighted, run.misdecoded, run.rejected
+        motion = run.motion
     rejected = ()
     if "baseline" in per_frame:
         rejected = tuple(
@@ -656,4 +678,5 @@ def estimate_trajectories(
             rejected=rejected_obs,
         ),
         timing_s=timing,
+        motion=motion,
     )

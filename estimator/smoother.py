@@ -947,3 +947,46 @@ def covariances_at(
     g = _batch_graph(b, np.asarray(world_T_cam, float), stamps_s)
     order = chain_ordering(meas.n_frames, len(meas.landmark_code), s.motion)
     return batch_covariances(g.graph, g.values, meas.n_frames, order)
+
+
+def log_evidence(
+    meas: Measurements,
+    stamps_s: np.ndarray,
+    init_world_T_cam: list[np.ndarray | None],
+    camera: CameraModel,
+    settings: SmootherSettings,
+    default_world_T_cam: np.ndarray,
+) -> float:
+    """Laplace approximation of log p(measurements | motion prior), up to a constant.
+
+    ``-E(x*) - 0.5 sum_f log det Sigma_f - 0.5 log det H``: the graph error
+    at the solution, the motion factors' normalisers (the only ones that
+    depend on the prior's densities) and the Gauss-Newton information of the
+    whole graph (gtsam's Bayes tree gives log det R = 0.5 log det H).
+    """
+    s = replace(settings, compute_sigmas=False)
+    b = _GraphBuilder(meas, stamps_s, camera, s)
+    g = _batch_graph(b, _fill_initial(init_world_T_cam, default_world_T_cam), stamps_s)
+    params = gtsam.LevenbergMarquardtParams()
+    n = meas.n_frames
+    params.setOrdering(segmented_ordering(n, len(meas.landmark_code), s.motion, s.segment_frames))
+    params.setMaxIterations(s.lm_max_iterations)
+    params.setRelativeErrorTol(s.lm_rel_tol)
+    result, _, _ = _optimize(g, params, s)
+    order = chain_ordering(n, len(meas.landmark_code), s.motion)
+    tree = g.graph.linearize(result).eliminateMultifrontal(order)
+    log_det_motion = 0.0
+    for i in range(1, n):
+        log_det_motion += _motion_log_det(b, i)
+    return float(-g.graph.error(result) - 0.5 * log_det_motion - tree.logDeterminant())
+
+
+def _motion_log_det(b: _GraphBuilder, i: int) -> float:
+    """log det of the covariance of the motion factor between frames i-1 and i."""
+    s, dt = b.s, b.dt(i)
+    if s.motion == RANDOM_WALK:
+        return 3 * np.log(s.rw_sigma_rot**2 * dt) + 3 * np.log(s.rw_sigma_pos**2 * dt)
+    graph = gtsam.NonlinearFactorGraph()
+    b.motion_factor(i, graph)
+    cov = b._pim_cache[round(dt, 9)].preintMeasCov()
+    return float(np.linalg.slogdet(cov)[1])

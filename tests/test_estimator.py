@@ -107,7 +107,7 @@ def test_smoother_exact_without_noise():
     loose = SmootherSettings(
         compute_sigmas=False, motion="random-walk", rw_sigma_pos=1e3, rw_sigma_rot=1e3
     )
-    settings = EstimatorSettings(methods=("smoothed",), smoother=loose)
+    settings = EstimatorSettings(methods=("smoothed",), smoother=loose, tune_motion=False)
     r = estimate_trajectories(frames, sign_map, camera, settings, progress=False)
     assert _pos_err(r.methods["smoothed"].world_T_cam, gt).max() < 1e-6
 

@@ -43,6 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--max-speed", type=float, default=None, help="baseline speed gate [m/s]")
     p.add_argument("--no-sigmas", action="store_true", help="skip marginal covariances")
+    p.add_argument(
+        "--fixed-motion-prior",
+        action="store_true",
+        help="keep the motion prior's default strength (default: chosen from the flight)",
+    )
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -74,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
     settings = replace(
         settings, methods=methods, solver=args.solver, smoother=smoother, per_frame=per_frame
     )
+    if args.fixed_motion_prior:
+        settings = replace(settings, tune_motion=False)
     result = estimate_trajectories(frames, sign_map, camera, settings, progress=not args.quiet)
     written = write_outputs(args.out, result)
     if not args.quiet:

@@ -160,6 +160,7 @@ def report_dict(result: EstimateResult) -> dict:
             "coverage": coverage,
             "timing_s": result.timing_s,
             "outliers": o,
+            "motion_prior": result.motion.to_dict() if result.motion is not None else None,
         }
     )
 
