@@ -67,7 +67,13 @@ from signpose.frontend.homography import (
     polygon_centroids,
     prepare_source,
 )
-from signpose.frontend.sign import ALL_CODES, N_BITS, SLOT_STEP_DEG, sign_shape, slot_angle_rad
+from signpose.frontend.sign import (
+    ALL_CODES,
+    N_BITS,
+    SLOT_STEP_DEG,
+    sign_shape,
+    slot_angle_rad,
+)
 
 
 class DecodeReason(enum.StrEnum):
@@ -85,6 +91,9 @@ class DecodeReason(enum.StrEnum):
 
 
 REASONS: tuple[str, ...] = tuple(r.value for r in DecodeReason)
+# Refusals that end the search: the sign was read and verified, and the
+# answer is no (another hypothesis would only be a worse reading of it).
+_FINAL_REASONS = frozenset({DecodeReason.CODE_NOT_IN_MAP, DecodeReason.OCCLUDED})
 # Which failure names a crop best when several hypotheses fail (higher wins).
 _REASON_RANK = {
     DecodeReason.NO_SIGN: 0,
@@ -182,8 +191,16 @@ _PART_HALF = np.array(
 )
 # The outer sampling ring of ``occlusion.dark_bands`` must lie in the crop.
 _OUTER_RING = 0.61 * _RIM / 0.46
+# Least aspect ratio of the directional rectangle's hole (3.1 on the sign,
+# less once blur rounds a small one).
+_MIN_DIRECTION_ASPECT = 1.5
+# Largest distance of the fitted disc's centre from a disc-like region's
+# centroid, as a fraction of the disc's major axis.
+_MAX_CENTRE_SHIFT = 0.1
 # Most erased slots a reading may keep (more is a wrong geometry, not an occluder).
 _MAX_ERASED = 2
+# Samples this close to a band's edge [diameters] count as under it (blur).
+_SAMPLE_BAND_MARGIN = 0.03
 # Margin around the explained parts when looking for unexplained white:
 # at least this many diameters, and at least _BLUR_PX pixels.
 _UNEXPLAINED_GROW = 0.035
@@ -290,7 +307,8 @@ class DecodeResult:
             that fits the other slots.
         keypoint_sigma_px: keypoint name -> (sigma_u, sigma_v) [px], the
             calibrated standard deviation of each coordinate (see
-            ``_keypoint_sigmas``); ``sigma_px`` is their geometric mean.
+            ``keypoint_sigmas``); ``sigma_px`` is their geometric mean.
+        sigma_inputs: what ``keypoint_sigmas`` was given (for calibration).
     """
 
     code: str | None
@@ -303,6 +321,7 @@ class DecodeResult:
     residual_px: float = float("nan")
     erased_slots: tuple[int, ...] = ()
     keypoint_sigma_px: dict[str, tuple[float, float]] = field(default_factory=dict)
+    sigma_inputs: SigmaInputs | None = None
 
     @property
     def ok(self) -> bool:
@@ -423,20 +442,37 @@ def _levels(vals: list[float]) -> tuple[float, float]:
     return black, white
 
 
-def _face_is_sign_like(frac: list[float]) -> bool:
+def _face_is_sign_like(frac: list[float], hidden: frozenset[int] = frozenset()) -> bool:
     """The disc between the parts is dark and the location square white throughout.
 
-    ``frac``: white fractions of all samples. A random dark blob with two
+    ``frac``: white fractions of all samples; ``hidden``: indices of samples
+    that an occluder in front covers, left out. A random dark blob with two
     bright holes is not a sign.
     """
-    worst_black = sorted(frac[_S_BLACK])[-2]  # the second brightest of 15
-    worst_around = sorted(frac[_S_AROUND])[-2]
+
+    def seen(part: slice) -> list[float]:
+        return [frac[i] for i in range(*part.indices(len(frac))) if i not in hidden]
+
+    blacks, around = sorted(seen(_S_BLACK)), sorted(seen(_S_AROUND))
+    if len(blacks) < 8 or len(around) < 4:
+        return False
     return (
-        worst_black <= 0.3
+        blacks[-2] <= 0.3  # the second brightest
         and min(frac[_S_LOC]) >= 0.6
         and min(frac[_S_DIR_LEN]) >= 0.45
-        and worst_around <= 0.5
+        and around[-2] <= 0.5
     )
+
+
+def _hidden_samples(
+    gray: np.ndarray, image_H_sign: np.ndarray, black: float, white: float
+) -> frozenset[int]:
+    """Indices of ``_SAMPLES`` under a dark band in front of the face."""
+    h, w = gray.shape
+    inside = _inside(_project(image_H_sign, _OUTER_RING), w, h, 0.0)
+    bands = occlusion.dark_bands(gray, image_H_sign, black, white, inside, _PART_CENTRES[:2])
+    under = occlusion.crossed(bands, _SAMPLES, np.full(len(_SAMPLES), _SAMPLE_BAND_MARGIN))
+    return frozenset(np.flatnonzero(under).tolist())
 
 
 def _class_cost(row: list[float], cls: tuple[float, float]) -> float:
@@ -471,7 +507,10 @@ def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSet
         return _Reading(None, DecodeReason.LOW_CONTRAST, 0.0, black, white)
     frac = [(v - black) / contrast for v in vals]
     if not _face_is_sign_like(frac):
-        return _Reading(None, DecodeReason.INCONSISTENT, 0.0, black, white)
+        # A bar in front may brighten the black references: leave out what it covers.
+        hidden = _hidden_samples(gray, image_H_sign, black, white)
+        if not hidden or not _face_is_sign_like(frac, hidden):
+            return _Reading(None, DecodeReason.INCONSISTENT, 0.0, black, white)
     rows = [frac[k : k + _N_OFFSETS] for k in _SLOT_STARTS]
     cost_black = [_class_cost(r, _CLASS_BLACK) for r in rows]
     cost_dir = [_class_cost(r, _CLASS_DIRECTION) for r in rows]
@@ -719,20 +758,42 @@ class SigmaModel:
 SIGMA_MODEL = SigmaModel()
 
 
-def _keypoint_sigmas(
-    reading: _Reading, refined: _Refined, names: list[str], ellipse: Ellipse, crossed: bool
+@dataclass(frozen=True)
+class SigmaInputs:
+    """What the decoder saw of one sign, the inputs of ``keypoint_sigmas``.
+
+    Attributes:
+        minor_px: the disc's minor axis [px].
+        spread: interquartile spread of the disc's black samples, as a
+            fraction of white - black.
+        residual_px: RMS residual of the homography fit [px] (NaN: exact fit).
+        crossed: an occluder crosses the face (its parts are dropped).
+    """
+
+    minor_px: float
+    spread: float
+    residual_px: float
+    crossed: bool
+
+
+def keypoint_sigmas(
+    inputs: SigmaInputs, names: Iterable[str], model: SigmaModel = SIGMA_MODEL
 ) -> dict[str, tuple[float, float]]:
-    """Per keypoint (sigma_u, sigma_v) [px] from ``SIGMA_MODEL`` (equal axes for now)."""
-    m = SIGMA_MODEL
-    minor = max(float(ellipse[1][1]), 1.0)
-    rms = refined.residual_px if math.isfinite(refined.residual_px) else 0.0
+    """Per keypoint (sigma_u, sigma_v) [px] under ``model``.
+
+    The two axes are equal: on the calibration sets the measured u and v
+    errors differ by less than the model's own spread across conditions.
+    """
+    m = model
+    minor = max(inputs.minor_px, 1.0)
+    rms = inputs.residual_px if math.isfinite(inputs.residual_px) else 0.0
     base2 = (
         m.floor_px**2
         + (m.size_px2 / minor) ** 2
-        + (m.spread_px2 * reading.spread / minor) ** 2
+        + (m.spread_px2 * inputs.spread / minor) ** 2
         + (m.residual * rms) ** 2
     )
-    base = math.sqrt(base2) * (m.occluded if crossed else 1.0)
+    base = math.sqrt(base2) * (m.occluded if inputs.crossed else 1.0)
     out = {}
     for name in names:
         k = 1.0 if name == "center" else (m.direction if name == "direction" else m.slot)
@@ -782,7 +843,7 @@ def decode_roi(
             res = _decode_at(cv2.morphologyEx(g, cv2.MORPH_CLOSE, k), dark, allowed, settings)
         else:
             res = _decode_at(g, dark, allowed, settings)
-        if res.code is not None or res.reason == DecodeReason.CODE_NOT_IN_MAP:
+        if res.code is not None or res.reason in _FINAL_REASONS:
             return res
         if best is None:
             # The first binarisation (the paper's) names the failure; the
@@ -854,7 +915,7 @@ def _decode_at(
     crop_centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     for _, i in regions[: settings.max_regions]:
         res = _decode_region_contour(g, contours, hier, i, crop_centre, allowed, settings)
-        if res.code is not None or res.reason == DecodeReason.CODE_NOT_IN_MAP:
+        if res.code is not None or res.reason in _FINAL_REASONS:
             return res
         if _REASON_RANK[res.reason] > _REASON_RANK[best_fail.reason]:
             best_fail = res
@@ -872,6 +933,7 @@ class _Region:
         cut: whether the crop's edge cuts the region along a chord (lazy).
         rim_contour: the region's outer contour when it is disc-like, else None.
         disc_area_px: its area [px^2] when disc-like, else None.
+        disc_centre_px: its centroid [px] when disc-like, else None.
         allowed: the map's codes, or None for all.
         settings: tuning.
     """
@@ -882,6 +944,7 @@ class _Region:
     cut: _LazyFlag
     rim_contour: np.ndarray | None
     disc_area_px: float | None
+    disc_centre_px: tuple[float, float] | None
     allowed: frozenset[str] | None
     settings: DecoderSettings
 
@@ -975,6 +1038,7 @@ def _decode_region_contour(
         cut=cut,
         rim_contour=outer if disc_like else None,
         disc_area_px=area if disc_like else None,
+        disc_centre_px=(ocu, ocv) if disc_like else None,
         allowed=allowed,
         settings=settings,
     )
@@ -993,7 +1057,7 @@ def _decode_region_contour(
         if whitener is None:
             continue
         res = _try_location(region, li, whitener)
-        if res.code is not None or res.reason == DecodeReason.CODE_NOT_IN_MAP:
+        if res.code is not None or res.reason in _FINAL_REASONS:
             return res
         if _REASON_RANK[res.reason] > _REASON_RANK[best.reason]:
             best = res
@@ -1010,9 +1074,13 @@ def _try_location(region: _Region, li: int, whitener: np.ndarray) -> DecodeResul
     # Step 6: smallest area and largest aspect ratio.
     ring.sort(key=lambda k: -holes[k].aspect / holes[k].area)
     for di in ring[: region.settings.max_direction_candidates]:
+        # Step 6's "largest aspect ratio", as a condition: the thin directional
+        # rectangle (0.08 x 0.25 diameters) is more elongated than the square.
+        if holes[di].aspect < max(_MIN_DIRECTION_ASPECT, holes[li].aspect):
+            continue
         hyp = _Hypothesis(location=li, direction=di, rel=rel, radius=radius)
         res = _try_hypothesis(region, hyp, whitener)
-        if res.code is not None or res.reason == DecodeReason.CODE_NOT_IN_MAP:
+        if res.code is not None or res.reason in _FINAL_REASONS:
             return res
         if _REASON_RANK[res.reason] > _REASON_RANK[best.reason]:
             best = res
@@ -1094,6 +1162,11 @@ def _initial_fit(
         return None, 0.0, _fail(DecodeReason.NO_LOCATION)
     disc_area = region.disc_area_px
     if disc_area is not None and not 0.6 < math.pi * major * minor / 4 / disc_area < 1.6:
+        return None, 0.0, _fail(DecodeReason.NO_LOCATION)
+    # The fitted disc sits where the disc-like region is (a hypothesis made of
+    # parts shifted by one slot can match sizes but not the place).
+    centre = region.disc_centre_px
+    if centre is not None and math.dist(ellipse[0], centre) > _MAX_CENTRE_SHIFT * major:
         return None, 0.0, _fail(DecodeReason.NO_LOCATION)
     rim = _project(image_H_sign, _RIM)
     if not _inside(rim, w, h, settings.edge_margin_px):
@@ -1219,8 +1292,16 @@ class _Occlusion:
     covered_parts: frozenset[int]
 
 
-def _occlusion(g: np.ndarray, image_H_sign: np.ndarray, reading: _Reading) -> _Occlusion:
-    """Erase black-read slots a dark band crosses; find the white parts it covers."""
+def _occlusion(
+    g: np.ndarray, image_H_sign: np.ndarray, reading: _Reading, outline_intact: bool
+) -> _Occlusion:
+    """Erase black-read slots a dark band crosses; find the white parts it covers.
+
+    ``outline_intact``: the disc's dark region is disc-like (nothing dark
+    joins its outline). Then no bar darker than the binarisation threshold
+    crosses the rim, and the weak evidence (a print-black band, which may as
+    well lie behind) is not used.
+    """
     h, w = g.shape
     inside = _inside(_project(image_H_sign, _OUTER_RING), w, h, 0.0)
     pattern = list(reading.code)
@@ -1228,12 +1309,17 @@ def _occlusion(g: np.ndarray, image_H_sign: np.ndarray, reading: _Reading) -> _O
     bands = occlusion.dark_bands(
         g, image_H_sign, reading.black, reading.white, inside, _PART_CENTRES[white]
     )
+    if outline_intact:
+        bands = [b for b in bands if b.in_front]
     band_hits = occlusion.crossed(bands, _PART_CENTRES, _PART_HALF)
+    # A white part that shows white throughout is only dropped under a band
+    # seen in front (a black bar that may be behind leaves it alone).
+    front_hits = occlusion.crossed([b for b in bands if b.in_front], _PART_CENTRES, _PART_HALF)
     dark_inside = occlusion.interior_not_white(
         g, image_H_sign, _PART_QUADS[white], reading.black, reading.white
     )
     covered = {p for p, d in zip(white, dark_inside.tolist(), strict=True) if d}
-    covered |= {p for p in white if band_hits[p]}
+    covered |= {p for p in white if front_hits[p]}
     for k in range(1, N_BITS + 1):
         if pattern[k - 1] == "0" and band_hits[1 + k]:
             pattern[k - 1] = "x"
@@ -1246,7 +1332,7 @@ def _accept_code(
     region: _Region, image_H_sign: np.ndarray, reading: _Reading, scale_px: float
 ) -> tuple[str | None, _Occlusion | None, DecodeReason]:
     """The one code the reading allows, with its occlusion, or why there is none."""
-    occ = _occlusion(region.gray, image_H_sign, reading)
+    occ = _occlusion(region.gray, image_H_sign, reading, region.rim_contour is not None)
     if {0, 1} & occ.covered_parts:
         return None, occ, DecodeReason.OCCLUDED  # no sign frame without both
     # Slots of unknown bit and the read code's white parts explain white.
@@ -1302,7 +1388,13 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
         -(rms if math.isfinite(rms) else 0.0) / 0.5
     )
     names = [_PART_NAMES[p] for p in kp_parts]
-    sigmas = _keypoint_sigmas(reading, refined, names, ellipse, bool(occ.covered_parts))
+    inputs = SigmaInputs(
+        minor_px=float(ellipse[1][1]),
+        spread=reading.spread,
+        residual_px=rms,
+        crossed=bool(occ.covered_parts),
+    )
+    sigmas = keypoint_sigmas(inputs, names)
     return DecodeResult(
         code=code,
         reason=DecodeReason.OK,
@@ -1314,6 +1406,7 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
         residual_px=rms,
         erased_slots=erased,
         keypoint_sigma_px=sigmas,
+        sigma_inputs=inputs,
     )
 
 
@@ -1446,4 +1539,5 @@ def decode_region(
         residual_px=res.residual_px,
         erased_slots=res.erased_slots,
         keypoint_sigma_px=res.keypoint_sigma_px,
+        sigma_inputs=res.sigma_inputs,
     )
