@@ -12,7 +12,8 @@ an exposure step spans consecutive frames as it does on a real UAV:
                     random direction.
     exposure_steps  expected auto-exposure steps per second: the gain jumps by a
                     factor 0.6-1.5 (log-uniform) and relaxes back with a 0.8 s
-                    time constant, on top of ``flight.lighting_at``'s slow drift.
+                    time constant, on top of ``flight.lighting_at``'s slow drift
+                    (both need ``SimSettings.lighting``; vibration needs ``blur``).
 
 What each frame got is written to ``boxes.jsonl`` (``signpose.io.boxes.FrameConditions``).
 """
