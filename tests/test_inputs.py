@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from signpose.estimator.camera import pinhole_camera
 
 from signpose.core.errors import InputError
+from signpose.io.clock import QUICKTIME_EPOCH_OFFSET_S, mp4_creation_time_ns, parse_start_time
 from signpose.io.sources import FolderSource, VideoSource, check_source_camera, open_source
 
 
@@ -176,3 +177,57 @@ def test_times_csv_parser(tmp_path_factory, stamps, junk):
         return
     with pytest.raises(InputError, match=rf"frames.csv: line {len(stamps) + 2}: "):
         _read_times_csv(path, files)
+
+
+# --------------------------------------------------------------------------- clocks (issue 13)
+
+
+def test_parse_start_time():
+    assert parse_start_time("1714557600.25") == 1_714_557_600_250_000_000
+    assert parse_start_time("2026-05-01T10:30:00Z") == 1_777_631_400_000_000_000
+    assert parse_start_time("2026-05-01T12:30:00.5+02:00") == 1_777_631_400_500_000_000
+    for bad, why in (
+        ("2026-05-01T10:30:00", "time zone"),
+        ("yesterday", "ISO 8601"),
+        ("-3", "epoch seconds"),
+        ("nan", "epoch seconds"),
+        ("1e30", "epoch seconds"),
+    ):
+        with pytest.raises(InputError, match=why):
+            parse_start_time(bad)
+
+
+def _with_creation_time(path: Path, unix_s: int) -> None:
+    """Put a creation time into an MP4's movie header (OpenCV writes 0 there)."""
+    data = bytearray(path.read_bytes())
+    at = data.index(b"mvhd") + 4
+    assert data[at] == 0  # version 0: 32-bit times
+    data[at + 4 : at + 8] = (unix_s + QUICKTIME_EPOCH_OFFSET_S).to_bytes(4, "big")
+    path.write_bytes(bytes(data))
+
+
+def test_video_frames_carry_the_containers_creation_time(tmp_path):
+    path = tmp_path / "flight.mp4"
+    _write_video(path, _frames(np.random.default_rng(2), 5), "mp4v", fps=10.0)
+    plain = open_source(path)
+    assert plain.clock == "zero" and next(iter(plain)).stamp_ns == 0
+    _with_creation_time(path, 1_777_631_400)
+    assert mp4_creation_time_ns(path) == 1_777_631_400 * 10**9
+    source = open_source(path)
+    assert source.clock == "creation_time"
+    stamps = [f.stamp_ns - 1_777_631_400 * 10**9 for f in source]
+    np.testing.assert_allclose(np.array(stamps) / 1e6, np.arange(5) * 100.0, atol=1)
+    given = open_source(path, start_ns=5 * 10**9)  # --start-time wins
+    assert given.clock == "start_time" and next(iter(given)).stamp_ns == 5 * 10**9
+
+
+def test_start_time_for_an_fps_folder_and_not_for_inputs_with_times(tmp_path):
+    rng = np.random.default_rng(3)
+    for i, img in enumerate(_frames(rng, 3)):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), img)
+    source = open_source(tmp_path, fps=4.0, start_ns=10**18)
+    assert [f.stamp_ns for f in source] == [10**18, 10**18 + 250_000_000, 10**18 + 500_000_000]
+    (tmp_path / "frames.csv").write_text("filename,stamp_ns\n0.png,0\n1.png,1\n2.png,2\n")
+    with pytest.raises(InputError, match="frames.csv gives this folder's times"):
+        open_source(tmp_path, start_ns=10**18)
+    assert mp4_creation_time_ns(tmp_path / "0.png") is None

@@ -515,3 +515,10 @@ def test_a_bag_runs_end_to_end_like_the_jpeg_folder(jpeg_flight, tmp_path, stora
         got, want = read_tum(out / f"{method}.tum"), read_tum(folder_run / f"{method}.tum")
         np.testing.assert_array_equal(got.stamps_s, want.stamps_s)
         np.testing.assert_allclose(got.world_t_cam, want.world_t_cam, rtol=0, atol=1e-6)
+
+
+def test_a_bag_keeps_its_own_clock(tmp_path):
+    bag = write_bag(tmp_path / "bag", _images(2), storage="sqlite3")
+    with pytest.raises(InputError, match="a log has its own times"):
+        open_source(bag, start_ns=10**18)
+    assert open_source(bag).clock == "log"

@@ -24,6 +24,7 @@ import numpy as np
 
 from signpose.core.errors import InputError
 from signpose.estimator.camera import CameraModel, check_image_size
+from signpose.io.clock import mp4_creation_time_ns
 from signpose.io.frames_csv import read_frames_csv
 from signpose.io.mcap_read import McapLog
 from signpose.io.messages import (
@@ -86,6 +87,9 @@ class FrameSource:
         length: number of frames expected, or None when unknown.
         camera: a calibration carried by the input itself (MCAP), or None.
         problems: what stopped the reading early, one line each (after iteration).
+        clock: where the frame times come from: ``log`` (header stamps), ``csv``
+            (frames.csv), ``creation_time`` (a video's own), ``start_time`` (given),
+            or ``zero`` (counted from 0).
     """
 
     kind = "input"
@@ -95,6 +99,7 @@ class FrameSource:
         self.length: int | None = None
         self.camera: CameraModel | None = None
         self.problems: list[str] = []
+        self.clock = "log"
         self._notes: list[str] = []  # problems found on opening, repeated in every pass
 
     def __iter__(self) -> Iterator[Frame]:
@@ -146,8 +151,18 @@ class VideoSource(FrameSource):
 
     kind = "video"
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, start_ns: int | None = None):
+        """Args:
+        path: the video.
+        start_ns: time of the first frame [ns since 1970]; None: the container's
+            creation_time where it has one, else 0.
+        """
         super().__init__(path)
+        created = mp4_creation_time_ns(path) if start_ns is None else None
+        self.start_ns = start_ns if start_ns is not None else (created or 0)
+        self.clock = (
+            "start_time" if start_ns is not None else ("creation_time" if created else "zero")
+        )
         cap = cv2.VideoCapture(str(path))
         try:
             if not cap.isOpened():
@@ -172,7 +187,7 @@ class VideoSource(FrameSource):
                 damaged.recovered()
                 stamp_ns = self._stamp_ns(cap, index + damaged.skipped, last_ns)
                 last_ns = stamp_ns
-                yield Frame(index, stamp_ns, image)
+                yield Frame(index, self.start_ns + stamp_ns, image)
                 index += 1
         finally:
             cap.release()
@@ -255,7 +270,12 @@ class FolderSource(FrameSource):
 
     kind = "folder"
 
-    def __init__(self, path: Path, fps: float | None = None):
+    def __init__(self, path: Path, fps: float | None = None, start_ns: int | None = None):
+        """Args:
+        path: the folder.
+        fps: frame rate: frame i is at ``start_ns + i / fps`` (frames.csv is ignored).
+        start_ns: time of the first frame with ``fps`` [ns since 1970]; None: 0.
+        """
         super().__init__(path)
         files = sorted(
             (p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES),
@@ -269,8 +289,16 @@ class FolderSource(FrameSource):
         if fps is not None:
             if not (math.isfinite(fps) and fps > 0):
                 raise InputError(f"--fps must be a number > 0, got {fps}")
-            self.items = [(p, int(round(i / fps * 1e9))) for i, p in enumerate(files)]
+            t0 = start_ns or 0
+            self.items = [(p, t0 + int(round(i / fps * 1e9))) for i, p in enumerate(files)]
+            self.clock = "zero" if start_ns is None else "start_time"
+        elif start_ns is not None and csv_path is not None:
+            raise InputError(
+                f"{path}: --start-time is for videos and --fps folders; "
+                f"{csv_path.name} gives this folder's times"
+            )
         elif csv_path is not None:
+            self.clock = "csv"
             self.items = _read_times_csv(csv_path, {p.name: p for p in files})
             unlisted = sorted(set(files) - {p for p, _ in self.items}, key=files.index)
             if unlisted:
@@ -463,7 +491,11 @@ class BagSource(LogSource):
 
 
 def open_source(
-    path: str | Path, *, topic: str | None = None, fps: float | None = None
+    path: str | Path,
+    *,
+    topic: str | None = None,
+    fps: float | None = None,
+    start_ns: int | None = None,
 ) -> FrameSource:
     """Open a video file, a folder of images, an MCAP log or a rosbag2 bag by what ``path`` is.
 
@@ -475,6 +507,9 @@ def open_source(
         path: the input.
         topic: image topic of a log or bag (needed when it has several).
         fps: frame rate for a folder without a times CSV (overrides the CSV).
+        start_ns: the first frame's time [ns since 1970] for a video or an
+            ``fps`` folder (``signpose.io.clock.parse_start_time``); logs, bags
+            and frames.csv carry their own times and refuse it.
 
     Raises:
         InputError: missing, empty or unknown input, or an ambiguous topic.
@@ -482,20 +517,25 @@ def open_source(
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: input not found")
-    if p.is_dir():
-        if (p / METADATA_NAME).is_file() or (not _has_images(p) and is_bag_folder(p)):
-            return BagSource(p, topic=topic)
-        return FolderSource(p, fps=fps)
-    if p.stat().st_size == 0:
+    if p.is_dir() and not (
+        (p / METADATA_NAME).is_file() or (not _has_images(p) and is_bag_folder(p))
+    ):
+        return FolderSource(p, fps=fps, start_ns=start_ns)
+    if p.is_file() and p.stat().st_size == 0:
         raise InputError(f"{p}: input file is empty")
-    if is_bag_file(p):
-        return BagSource(p, topic=topic)
     suffix = p.suffix.lower()
-    if suffix in MCAP_SUFFIXES or _has_mcap_magic(p):
+    is_log = p.is_dir() or is_bag_file(p) or suffix in MCAP_SUFFIXES or _has_mcap_magic(p)
+    if is_log and start_ns is not None:
+        raise InputError(
+            f"{p}: --start-time is for videos and --fps folders; a log has its own times"
+        )
+    if p.is_dir() or is_bag_file(p):
+        return BagSource(p, topic=topic)
+    if is_log:
         return McapSource(p, topic=topic)
     if suffix in IMAGE_SUFFIXES:
         raise InputError(f"{p}: a single image; pass the folder that holds the frames")
-    return VideoSource(p)
+    return VideoSource(p, start_ns=start_ns)
 
 
 def _has_images(folder: Path) -> bool:
