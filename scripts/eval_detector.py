@@ -15,7 +15,14 @@ detector on every frame and scores it against ``boxes.jsonl``:
 split by sign size (18-30, 30-60, 60-200 px), for the paper's merge and
 ``cv2.groupRectangles``, in ``fast`` and ``paper`` modes.
 
-    .venv/bin/python scripts/eval_detector.py [--quick] [--json PATH]
+``--photo-flights K`` adds K short flights with real photographs behind the
+pylon (``SimSettings(photo=True)``, scikit-image's data images; each flight
+gets the photograph its seed picks) and prints, for the default detector
+(group merge), a table per background and mode: recall S/N and T/N over
+signs >= 18 px, precision and T/D (``--json``: the same under
+``backgrounds``).
+
+    .venv/bin/python scripts/eval_detector.py [--quick] [--photo-flights 8] [--json PATH]
 """
 
 from __future__ import annotations
@@ -47,6 +54,8 @@ FLIGHTS = (
     ("climb-hover-depart", 15.0, 0.33),
 )
 EVAL_SEED = 4242
+# Procedural-background flights run beside the photo flights, for reference.
+REFERENCE_FLIGHTS = 2
 
 
 def _frames(out: Path, n: int):
@@ -101,6 +110,64 @@ def score(detections, truth: dict, table: dict, readable: set[str]) -> None:
         table[b]["T" if match else "F"] += 1
 
 
+def _background_tables(
+    root: Path,
+    sign_map,
+    detector: SignDetector,
+    modes: list[str],
+    flights: int,
+    frames: int,
+    seed: int,
+) -> dict:
+    """background -> mode -> summarized table, over flights with photographs behind.
+
+    Two flights of the same kind with the procedural background come first,
+    as the reference.
+    """
+    tables: dict[str, dict[str, dict]] = {}
+    for k in range(flights + REFERENCE_FLIGHTS):
+        out = root / f"photo{k}"
+        settings = SimSettings(
+            frames=frames,
+            trajectory="climb-hover-depart",
+            distance_m=28.0,
+            seed=seed + 100 + k,
+            format="png",
+            photo=k >= REFERENCE_FLIGHTS,
+        )
+        simulate(sign_map, out, settings, progress=False)
+        for gray, truth in _frames(out, frames):
+            background = truth.get("conditions", {}).get("background", "procedural")
+            readable = decodable(gray, truth)
+            for mode in modes:
+                tab = tables.setdefault(background, {}).setdefault(
+                    mode, {f"{lo}-{hi}": _empty() for lo, hi in BINS}
+                )
+                res = detector.detect(gray, sign_map.codes, mode=mode)
+                score(res.detections, truth, tab, readable)
+        print(f"background flight {k}: seed {seed + 100 + k}, {frames} frames", file=sys.stderr)
+    return {
+        bg: {mode: summarize(tab) for mode, tab in by_mode.items()}
+        for bg, by_mode in sorted(tables.items())
+    }
+
+
+def _print_backgrounds(backgrounds: dict) -> None:
+    print("\nper background (merge group), signs >= 18 px:")
+    print(
+        f"{'background':>26} {'mode':>5} {'N':>5} {'S':>5} {'F':>3} {'precision':>10} "
+        f"{'recall S/N':>10} {'T/N':>7} {'T/D':>7}"
+    )
+    for bg, by_mode in backgrounds.items():
+        for mode, summ in by_mode.items():
+            r = summ["all"]
+            print(
+                f"{bg:>26} {mode:>5} {r['N']:5d} {r['S']:5d} {r['F']:3d} "
+                f"{100 * r['precision']:9.2f}% {100 * r['recall']:9.2f}% "
+                f"{100 * r['true_recall']:6.2f}% {100 * r['recall_of_decodable']:6.2f}%"
+            )
+
+
 def summarize(table: dict) -> dict:
     total = _empty()
     for row in table.values():
@@ -126,6 +193,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=EVAL_SEED, help="simulation seed (held out)")
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
     ap.add_argument("--keep", type=Path, default=None, help="simulate into this folder")
+    ap.add_argument(
+        "--photo-flights", type=int, default=0, help="flights with photographs behind (default 0)"
+    )
+    ap.add_argument("--photo-frames", type=int, default=10, help="frames per photo flight")
+    ap.add_argument(
+        "--skip-main", action="store_true", help="only the photo flights (with --photo-flights)"
+    )
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)
     total = args.frames or (30 if args.quick else 300)
@@ -141,9 +215,20 @@ def main(argv: list[str] | None = None) -> int:
     times: dict[tuple[str, str], list[float]] = {k: [] for k in tables}
     extra = {k: {"regions": 0, "undecoded": 0} for k in tables}
     n_frames = 0
+    backgrounds: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
-        for k, (traj, dist, share) in enumerate(FLIGHTS):
+        if args.photo_flights:
+            backgrounds = _background_tables(
+                root,
+                sign_map,
+                detectors["group"],
+                modes,
+                args.photo_flights,
+                args.photo_frames,
+                args.seed,
+            )
+        for k, (traj, dist, share) in enumerate(() if args.skip_main else FLIGHTS):
             n = max(1, round(total * share))
             out = root / f"flight{k}_{traj}"
             settings = SimSettings(
@@ -195,9 +280,13 @@ def main(argv: list[str] | None = None) -> int:
                 f"{100 * r['true_recall']:6.2f}% {r['D']:6d} "
                 f"{100 * r['recall_of_decodable']:6.2f}%"
             )
+    if backgrounds:
+        _print_backgrounds(backgrounds)
     if args.json:
+        data = {"frames": n_frames, "seed": args.seed, "results": results}
+        data["backgrounds"] = backgrounds
         with atomic_write(args.json) as f:
-            json.dump({"frames": n_frames, "seed": args.seed, "results": results}, f, indent=1)
+            json.dump(data, f, indent=1)
     return 0
 
 
