@@ -1,7 +1,9 @@
 """MCAP logs in: channels and decoded messages, streamed record by record.
 
-Messages are JSON (Foxglove) or ROS 2 CDR (decoded by mcap-ros2-support from
-the schema in the log); what they mean is ``signpose.io.messages``. A
+Messages are JSON (Foxglove) or ROS 2 CDR, decoded by the ``rosbags``
+typestore from the message definition the log carries (``ros2msg`` or
+``ros2idl`` schema, as ``ros2 bag record`` writes it); what they mean is
+``signpose.io.messages``. A
 truncated or corrupt log yields what is readable and then says where it stopped.
 """
 
@@ -15,12 +17,14 @@ from typing import Any
 
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
-from mcap_ros2.decoder import DecoderFactory
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
 from signpose.core.errors import InputError
 from signpose.io.messages import LogChannel, LogMessage
 
 JSON_ENCODING = "json"
+CDR_ENCODING = "cdr"
+ROS2_SCHEMA_ENCODINGS = ("ros2msg", "ros2idl")
 MAX_RECORD_BYTES = 1 << 30  # one record larger than this is taken for corrupt data
 
 
@@ -141,7 +145,6 @@ class McapLog:
         data ends the stream and sets ``problem``.
         """
         wanted = set(topics)
-        ros2 = DecoderFactory()
         schemas: dict[int, Any] = {}
         channels: dict[int, Any] = {}
         decoders: dict[int, Callable[[bytes], Any]] = {}
@@ -160,7 +163,7 @@ class McapLog:
                 name = sch.name if sch is not None else ""
                 decoder = decoders.get(ch.id)
                 if decoder is None:
-                    decoder = _decoder_for(ch, sch, ros2, self.path)
+                    decoder = _decoder_for(ch, sch, self.path)
                     decoders[ch.id] = decoder
                 yield self._decoded(ch.topic, name, int(record.log_time), record.data, decoder)
 
@@ -176,16 +179,41 @@ class McapLog:
             return LogMessage(topic, schema_name, log_time_ns, None, f"cannot decode ({text})")
 
 
-def _decoder_for(channel, schema_record, ros2_factory, path: Path) -> Callable[[bytes], Any]:
+def _decoder_for(channel, schema_record, path: Path) -> Callable[[bytes], Any]:
     if channel.message_encoding == JSON_ENCODING:
         return _json_message
-    decoder = ros2_factory.decoder_for(channel.message_encoding, schema_record)
-    if decoder is None:
+    if channel.message_encoding != CDR_ENCODING:
         raise InputError(
             f"{path}: topic {channel.topic}: cannot decode message encoding "
             f"'{channel.message_encoding}' (supported: json, ROS 2 cdr)"
         )
-    return decoder
+    return _cdr_decoder(channel.topic, schema_record, path)
+
+
+def _cdr_decoder(topic: str, schema_record, path: Path) -> Callable[[bytes], Any]:
+    """A decoder of one ROS 2 type built from the definition in the log's schema."""
+    encoding = schema_record.encoding if schema_record is not None else ""
+    if encoding not in ROS2_SCHEMA_ENCODINGS:
+        raise InputError(
+            f"{path}: topic {topic}: a cdr channel needs a ros2msg or ros2idl schema, "
+            f"has {encoding or 'none'}"
+        )
+    name = schema_record.name
+    store = get_typestore(Stores.EMPTY)
+    try:
+        text = bytes(schema_record.data).decode("utf-8")
+        if encoding == "ros2msg":
+            store.register(get_types_from_msg(text, name))
+        else:
+            store.register(get_types_from_idl(text))
+    except Exception as exc:  # noqa: BLE001 - any parse failure of the user's schema
+        raise InputError(
+            f"{path}: topic {topic}: cannot read the message definition of {name} "
+            f"({type(exc).__name__})"
+        ) from None
+    if name not in store.types:
+        raise InputError(f"{path}: topic {topic}: the schema does not define {name}")
+    return lambda data: store.deserialize_cdr(data, name)
 
 
 def _json_message(data: bytes) -> Any:
