@@ -31,6 +31,7 @@ from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.io.camera_file import load_camera
 from signpose.maps.loader import load_map
 from signpose.pipeline import RunSettings, run
+from signpose.report_html import write_batch_index
 
 log = logging.getLogger(__name__)
 
@@ -375,6 +376,7 @@ def run_batch(
         bar.close()
         ordered = [outcomes[n] for n in names if n in outcomes]
         write_summary(out / SUMMARY_NAME, ordered)
+        write_batch_index(out)
     return ordered
 
 

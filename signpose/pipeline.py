@@ -58,6 +58,7 @@ from signpose.io.sources import Frame, FrameSource, PrefetchedFrame, open_source
 from signpose.io.tum import read_tum
 from signpose.maps.loader import SignMap, bundled_map_path, load_map
 from signpose.plots import PlotData, pose_errors, write_plots
+from signpose.report_html import write_run_report
 from signpose.sim.flight import SimSettings, simulate
 
 log = logging.getLogger(__name__)
@@ -957,7 +958,7 @@ def run(
     _add_to_report(out / REPORT_NAME, "pipeline", _pipeline_section(result, source, obs, s))
     if out / REPORT_NAME not in files:
         result = replace(result, files=(*result.files, out / REPORT_NAME))
-    return result
+    return replace(result, files=(*result.files, write_run_report(out)))  # last: lists all
 
 
 def _write_run_files(
