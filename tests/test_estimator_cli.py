@@ -117,3 +117,15 @@ def test_compare_without_estimates(tmp_path, capsys):
     gt.write_text("0 0 0 0 0 0 0 1\n")
     err = _run_error(["compare", str(tmp_path), "--gt", str(gt)], capsys)
     assert "signpose estimate" in err
+
+
+def test_map_fixed_and_fixed_motion_prior_options(flight, tmp_path, capsys):
+    obs, cam, _, _ = flight
+    out = tmp_path / "fixed"
+    argv = _estimate_argv(obs, bundled_map_path(), cam, out)
+    assert main([*argv, "--map-fixed", "--fixed-motion-prior"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["settings"]["smoother"]["landmarks"] == "fixed"
+    assert report["motion_prior"] is None
+    statuses = set(read_trajectory_csv(out / "trajectory.csv")["smoothed"]["status"])
+    assert statuses <= {"ok", "weak", "bridged", "suspect"} and "ok" in statuses

@@ -44,6 +44,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-speed", type=float, default=None, help="baseline speed gate [m/s]")
     p.add_argument("--no-sigmas", action="store_true", help="skip marginal covariances")
     p.add_argument(
+        "--map-fixed",
+        action="store_true",
+        help="treat the survey as exact (default: each sign a rigid body with its sigma_m)",
+    )
+    p.add_argument(
         "--fixed-motion-prior",
         action="store_true",
         help="keep the motion prior's default strength (default: chosen from the flight)",
@@ -73,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         smoother = replace(smoother, motion=args.motion)
     if args.no_sigmas:
         smoother = replace(smoother, compute_sigmas=False)
+    if args.map_fixed:
+        smoother = replace(smoother, landmarks="fixed")
     per_frame = settings.per_frame
     if args.max_speed is not None:
         per_frame = replace(per_frame, max_speed_mps=args.max_speed)
