@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -208,3 +209,59 @@ def test_mcap_json_log_round_trip(tmp_path, shape):
         back, reason = image_from_message(msg.schema_name, msg.decoded)
         assert reason == ""
         np.testing.assert_array_equal(back, img)
+
+
+def _raw(image: np.ndarray, encoding: str, step_pad: int = 0) -> dict:
+    h, w = image.shape[:2]
+    rows = image.reshape(h, -1)
+    padded = np.hstack([rows, np.zeros((h, step_pad), np.uint8)])
+    return {
+        "width": w,
+        "height": h,
+        "encoding": encoding,
+        "step": padded.shape[1],
+        "data": padded.tobytes(),
+    }
+
+
+@pytest.mark.parametrize(
+    "encoding, make",
+    [
+        ("rgb8", lambda bgr: cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)),
+        ("bgra8", lambda bgr: cv2.cvtColor(bgr, cv2.COLOR_BGR2BGRA)),
+        ("yuv422_yuy2", lambda bgr: cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_YUY2)),
+        ("yuv422", lambda bgr: cv2.cvtColor(bgr, cv2.COLOR_BGR2YUV_UYVY)),
+    ],
+)
+def test_raw_colour_encodings_decode_to_bgr(encoding, make):
+    bgr = np.zeros((6, 8, 3), np.uint8)
+    bgr[:] = (10, 100, 200)
+    image, reason = image_from_message("sensor_msgs/msg/Image", _raw(make(bgr), encoding, 3))
+    assert reason == ""
+    np.testing.assert_allclose(image.astype(int), bgr.astype(int), atol=2)  # YUV rounds
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+def test_bayer_mosaics_decode_to_their_colour(pattern):
+    value = {"r": 200, "g": 100, "b": 10}
+    mosaic = np.zeros((8, 8), np.uint8)
+    for k, (dy, dx) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
+        mosaic[dy::2, dx::2] = value[pattern[k]]
+    image, reason = image_from_message("sensor_msgs/msg/Image", _raw(mosaic, f"bayer_{pattern}8"))
+    assert reason == ""
+    np.testing.assert_array_equal(image[3:5, 3:5], np.full((2, 2, 3), (10, 100, 200)))
+
+
+@pytest.mark.parametrize(
+    "change, reason",
+    [
+        ({"width": "abc"}, "malformed raw image"),
+        ({"height": -3}, "not usable"),
+        ({"encoding": "32fc1"}, "unsupported raw image encoding"),
+        ({"data": b"\0" * 10}, "too short"),
+    ],
+)
+def test_malformed_raw_images_are_reasons_not_exceptions(change, reason):
+    msg = {**_raw(np.zeros((6, 8), np.uint8), "mono8"), **change}
+    image, why = image_from_message("sensor_msgs/msg/Image", msg)
+    assert image is None and reason in why

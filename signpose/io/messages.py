@@ -155,64 +155,97 @@ def is_cut_jpeg(buf: np.ndarray) -> bool:
     return data[:2] == _JPEG_START and not data.rstrip(b"\x00").endswith(_JPEG_END)
 
 
-_RAW_CHANNELS = {"mono8": 1, "8uc1": 1, "bgr8": 3, "rgb8": 3, "8uc3": 3, "bgra8": 4, "rgba8": 4}
+# Raw encodings (ROS 2 sensor_msgs/Image, foxglove.RawImage): name -> (bytes per pixel
+# and channel layout in the buffer, conversion to BGR or None). Bayer patterns by their
+# standard names (OpenCV >= 4.5 spells them so; cv_bridge maps bayer_rggb8 the same way).
+_RAW_ENCODINGS: dict[str, tuple[int, int | None]] = {
+    "mono8": (1, None),
+    "8uc1": (1, None),
+    "bgr8": (3, None),
+    "8uc3": (3, None),
+    "rgb8": (3, cv2.COLOR_RGB2BGR),
+    "bgra8": (4, cv2.COLOR_BGRA2BGR),
+    "8uc4": (4, cv2.COLOR_BGRA2BGR),
+    "rgba8": (4, cv2.COLOR_RGBA2BGR),
+    "bayer_rggb8": (1, cv2.COLOR_BayerRGGB2BGR),
+    "bayer_bggr8": (1, cv2.COLOR_BayerBGGR2BGR),
+    "bayer_gbrg8": (1, cv2.COLOR_BayerGBRG2BGR),
+    "bayer_grbg8": (1, cv2.COLOR_BayerGRBG2BGR),
+    "yuv422": (2, cv2.COLOR_YUV2BGR_UYVY),
+    "uyvy": (2, cv2.COLOR_YUV2BGR_UYVY),
+    "yuv422_yuy2": (2, cv2.COLOR_YUV2BGR_YUY2),
+    "yuyv": (2, cv2.COLOR_YUV2BGR_YUY2),
+}
+_MONO16 = ("mono16", "16uc1")
+MAX_RAW_SIDE_PX = 100_000
 
 
 def image_from_message(schema_name: str, msg: Any) -> tuple[np.ndarray | None, str]:
     """Decode an image message to a gray (H, W) or BGR (H, W, 3) uint8 array.
 
     Returns:
-        (image, "") or (None, reason) when the message cannot be decoded.
+        (image, "") or (None, reason) when the message cannot be decoded; never raises
+        for a message's content.
     """
     if schema_name in ("foxglove.CompressedImage", "sensor_msgs/msg/CompressedImage"):
-        try:
-            buf = np.frombuffer(_as_bytes(_get(msg, "data", b"")), dtype=np.uint8)
-        except (ValueError, TypeError) as exc:
-            return None, f"bad image data ({exc})"
-        if buf.size == 0:
-            return None, "empty image data"
-        if is_cut_jpeg(buf):
-            return None, "JPEG data ends without its end-of-image marker (cut short)"
-        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-        if img is None:
-            return None, f"cannot decode {_get(msg, 'format', '?')} image"
-        if img.ndim == 3 and img.shape[2] == 4:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-        if img.dtype != np.uint8:
-            img = (img / 257).astype(np.uint8)
-        return img, ""
+        return _compressed_image(msg)
     if schema_name in ("foxglove.RawImage", "sensor_msgs/msg/Image"):
-        w, h = int(_get(msg, "width", 0)), int(_get(msg, "height", 0))
-        enc = str(_get(msg, "encoding", "")).lower()
-        step = int(_get(msg, "step", 0))
-        data = _as_bytes(_get(msg, "data", b""))
-        if enc in ("mono16", "16uc1"):
-            ch, dtype = 1, np.dtype(">u2" if int(_get(msg, "is_bigendian", 0)) else "<u2")
-        elif enc in _RAW_CHANNELS:
-            ch, dtype = _RAW_CHANNELS[enc], np.dtype(np.uint8)
-        else:
-            return None, f"unsupported raw image encoding '{enc}'"
-        row = w * ch * dtype.itemsize
-        step = step or row
-        if w <= 0 or h <= 0 or step < row or len(data) < step * (h - 1) + row:
-            return None, f"raw image data too short for {w}x{h} {enc}"
-        rows = np.frombuffer(data[: step * h].ljust(step * h, b"\0"), dtype=np.uint8)
-        pixels = np.ascontiguousarray(rows.reshape(h, step)[:, :row]).view(dtype)
-        if ch == 1:
-            img = pixels.reshape(h, w)
-            if dtype.itemsize == 2:
-                img = (img.astype(np.float32) / 257).astype(np.uint8)
-            return img, ""
-        img = pixels.reshape(h, w, ch)
-        conversion = {
-            "rgb8": cv2.COLOR_RGB2BGR,
-            "rgba8": cv2.COLOR_RGBA2BGR,
-            "bgra8": cv2.COLOR_BGRA2BGR,
-        }.get(enc)
-        if conversion is not None:
-            img = cv2.cvtColor(img, conversion)
-        return img, ""
+        try:
+            return _raw_image(msg)
+        except (ValueError, TypeError, OverflowError) as exc:
+            return None, f"malformed raw image ({exc})"
     return None, f"not an image schema: {schema_name}"
+
+
+def _compressed_image(msg: Any) -> tuple[np.ndarray | None, str]:
+    try:
+        buf = np.frombuffer(_as_bytes(_get(msg, "data", b"")), dtype=np.uint8)
+    except (ValueError, TypeError) as exc:
+        return None, f"bad image data ({exc})"
+    if buf.size == 0:
+        return None, "empty image data"
+    if "compresseddepth" in str(_get(msg, "format", "")).lower():
+        return None, "a compressed depth image, not a camera image"
+    if is_cut_jpeg(buf):
+        return None, "JPEG data ends without its end-of-image marker (cut short)"
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None, f"cannot decode {_get(msg, 'format', '?')} image"
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    if img.dtype != np.uint8:
+        img = (img / 257).astype(np.uint8)
+    return img, ""
+
+
+def _raw_image(msg: Any) -> tuple[np.ndarray | None, str]:
+    w = _whole_number(_get(msg, "width", 0))
+    h = _whole_number(_get(msg, "height", 0))
+    step = _whole_number(_get(msg, "step", 0))
+    enc = str(_get(msg, "encoding", "")).lower()
+    data = _as_bytes(_get(msg, "data", b""))
+    if enc in _MONO16:
+        big = bool(_whole_number(_get(msg, "is_bigendian", 0)))
+        dtype, width_bytes, conversion = np.dtype(">u2" if big else "<u2"), 2, None
+    elif enc in _RAW_ENCODINGS:
+        width_bytes, conversion = _RAW_ENCODINGS[enc]
+        dtype = np.dtype(np.uint8)
+    else:
+        return None, f"unsupported raw image encoding '{enc}'"
+    row = w * width_bytes
+    step = step or row
+    if not (0 < w <= MAX_RAW_SIDE_PX and 0 < h <= MAX_RAW_SIDE_PX):
+        return None, f"raw image size {w}x{h} is not usable"
+    if step < row or len(data) < step * (h - 1) + row:
+        return None, f"raw image data too short for {w}x{h} {enc}"
+    rows = np.frombuffer(data[: step * h].ljust(step * h, b"\0"), dtype=np.uint8)
+    pixels = np.ascontiguousarray(rows.reshape(h, step)[:, :row])
+    if enc in _MONO16:
+        return (pixels.view(dtype).reshape(h, w).astype(np.float32) / 257).astype(np.uint8), ""
+    img = pixels.reshape(h, w, width_bytes) if width_bytes > 1 else pixels.reshape(h, w)
+    if conversion is not None:
+        img = cv2.cvtColor(img, conversion)
+    return img, ""
 
 
 def camera_from_message(schema_name: str, msg: Any, source: str) -> CameraModel:
