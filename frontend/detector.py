@@ -362,9 +362,7 @@ class SignDetector:
         rects = self._cascade.detectMultiScale(
             gray, scaleFactor=sf, minNeighbors=0, minSize=(lo, lo), maxSize=(hi, hi)
         )
-        # OpenCV's worker threads append windows in the order they finish:
-        # sorted, the merge (and so the output) does not depend on it.
-        return np.unique(np.asarray(rects, int).reshape(-1, 4), axis=0)
+        return np.asarray(rects, int).reshape(-1, 4)
 
     def _raw_scaled(
         self, gray: np.ndarray, zoom: float, min_px: float, max_px: float, sf: float | None = None
@@ -384,7 +382,9 @@ class SignDetector:
             raise InputError(f"unknown detection mode {mode!r}: use one of {', '.join(MODES)}")
         if mode == "paper" or min(gray.shape) < 96:
             max_px = max(WINDOW_PX, self.settings.max_size_frac * min(gray.shape))
-            return self._raw(gray, WINDOW_PX, max_px)
+            # OpenCV's worker threads append windows in the order they finish:
+            # sorted, the merge (and so the output) does not depend on it.
+            return np.unique(self._raw(gray, WINDOW_PX, max_px), axis=0)
         return self._fast_raw(gray)
 
     def candidate_rois(self, gray: np.ndarray) -> list[tuple[int, int, int, int, float]]:
@@ -617,8 +617,11 @@ class SignDetector:
             r = self._raw_scaled(roi, zoom, lo, hi, sf=s.track_scale_factor)
             r[:, :2] += (x0, y0)
             parts.append(r)
-        # Overlapping regions report the same window twice: count it once.
-        return np.unique(np.concatenate(parts), axis=0) if parts else np.zeros((0, 4))
+        if not parts:
+            return np.zeros((0, 4))
+        # Sorted, the merge does not depend on the order OpenCV's threads found them.
+        raw = np.concatenate(parts)
+        return raw[np.lexsort(raw.T[::-1])]
 
 
 def _window_score(n_windows: float) -> float:
