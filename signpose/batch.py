@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from signpose.core.errors import InputError, SignposeError
 from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.fingerprint import FINGERPRINT_KEY, flight_fingerprint, stored_fingerprint
 from signpose.io.camera_file import load_camera
 from signpose.maps.loader import load_map
 from signpose.pipeline import RunSettings, run
@@ -38,6 +39,9 @@ log = logging.getLogger(__name__)
 DONE_MARKER = ".done.json"
 SUMMARY_NAME = "summary.csv"
 _METHOD_ORDER = ("baseline", "pnp", "smoothed", "causal")
+# FlightJob fields that change a flight's results (with its files: see _fingerprint).
+# plots and with_images only add files: changing them alone does not redo a flight (--force does).
+_RESULT_FIELDS = ("topic", "fps")
 
 
 class FlightStatus(enum.StrEnum):
@@ -69,6 +73,7 @@ class FlightJob:
         fps: frame rate for an image folder without times, or 0.
         with_images: put images into result.mcap.
         plots: write the PNG plots.
+        fingerprint: digest of what the outputs are made from (kept in the done marker).
     """
 
     flight: str
@@ -81,6 +86,7 @@ class FlightJob:
     fps: float = 0.0
     with_images: bool = False
     plots: bool = True
+    fingerprint: str = ""
 
 
 @dataclass(frozen=True)
@@ -108,9 +114,19 @@ class FlightOutcome:
     skipped: bool = False
 
 
-def flight_names(inputs: Iterable[str | os.PathLike]) -> list[str]:
-    """Unique, readable sub-folder names for the inputs (stem; parent_stem on clashes)."""
+def flight_names(
+    inputs: Iterable[str | os.PathLike], root: str | os.PathLike | None = None
+) -> list[str]:
+    """Unique, readable sub-folder names for the inputs.
+
+    Without ``root``: the stem, parent_stem on clashes (so a name depends on
+    which inputs come together). With ``root``: the path below ``root``
+    without its suffix, folders joined by "_" (``ROOT/f1/video.mp4`` ->
+    ``f1_video``), the same whichever subset is passed.
+    """
     paths = [Path(p) for p in inputs]
+    if root is not None:
+        return _names_below(paths, Path(root))
     names = [p.stem if p.suffix else p.name for p in paths]
     clash = {n for n in names if names.count(n) > 1}
     names = [
@@ -123,6 +139,24 @@ def flight_names(inputs: Iterable[str | os.PathLike]) -> list[str]:
         seen[n] = k + 1
         out.append(n if k == 0 else f"{n}_{k + 1}")
     return out
+
+
+def _names_below(paths: list[Path], root: Path) -> list[str]:
+    base = root.resolve()
+    names = []
+    for p in paths:
+        try:
+            rel = p.resolve().relative_to(base)
+        except ValueError:
+            raise InputError(
+                f"{p}: not inside --root {root}; pass a --root above every input"
+            ) from None
+        parts = rel.with_suffix("").parts if rel.suffix else rel.parts
+        names.append("_".join(parts) or base.name)
+    clash = sorted({n for n in names if names.count(n) > 1})
+    if clash:
+        raise InputError(f"--root {root}: inputs share the flight name {clash[0]}; rename one")
+    return names
 
 
 def _beside(input_path: Path, name: str) -> str:
@@ -176,7 +210,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             message=f"internal error: {type(exc).__name__}: {exc}",
         )
     with atomic_write(Path(job.out_dir) / DONE_MARKER) as f:
-        json.dump(_clean(asdict(outcome)), f, indent=2)
+        json.dump(_clean(asdict(outcome)) | {FINGERPRINT_KEY: job.fingerprint}, f, indent=2)
     return outcome
 
 
@@ -207,7 +241,12 @@ def read_done(out_dir: Path) -> FlightOutcome | None:
 
 
 def write_summary(path: Path, outcomes: list[FlightOutcome]) -> None:
-    """summary.csv (atomically): flight, status, frames, coverage and error per method, time."""
+    """summary.csv (atomically): flight, status, frames, coverage and error per method, time.
+
+    Rows an earlier call wrote into the same file stay: a flight of
+    ``outcomes`` replaces its own row in place, other flights' rows are kept
+    as they were, new flights come last.
+    """
     methods = sorted(
         {m for o in outcomes for m in (*o.coverage, *o.position_rmse_m)},
         key=lambda m: (_METHOD_ORDER.index(m) if m in _METHOD_ORDER else 99, m),
@@ -218,7 +257,6 @@ def write_summary(path: Path, outcomes: list[FlightOutcome]) -> None:
     header += ["time_s", "skipped", "message"]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
 
     def fmt(x, digits):
         return (
@@ -227,14 +265,37 @@ def write_summary(path: Path, outcomes: list[FlightOutcome]) -> None:
             else f"{x:.{digits}f}"
         )
 
+    rows = {}
     for o in outcomes:
         row = [o.flight, o.status, o.frames]
         row += [fmt(o.coverage.get(m), 4) for m in methods]
         row += [fmt(o.position_rmse_m.get(m), 4) for m in methods]
         row += [fmt(o.time_s, 2), "yes" if o.skipped else "", o.message]
-        w.writerow(row)
+        rows[o.flight] = dict(zip(header, row, strict=True))
+    header, merged = _with_earlier_rows(path, header, rows)
+    w.writerow(header)
+    for row in merged:
+        w.writerow([row.get(h, "") for h in header])
     with atomic_write(path) as f:
         f.write(buf.getvalue())
+
+
+def _with_earlier_rows(
+    path: Path, header: list[str], rows: dict[str, dict]
+) -> tuple[list[str], list[dict]]:
+    """(header, rows): the earlier rows in their order, updated by ``rows``, then new ones."""
+    try:
+        with open(path, encoding="utf-8", newline="") as f:
+            reader = csv.DictReader(f)
+            earlier = [r for r in reader if r.get("flight")]
+            earlier_header = list(reader.fieldnames or [])
+    except (OSError, csv.Error, UnicodeDecodeError):
+        return header, list(rows.values())
+    merged = [rows.pop(r["flight"], r) for r in earlier]
+    merged += rows.values()
+    extra = [h for h in earlier_header if h not in header]
+    at = header.index("time_s") if "time_s" in header else len(header)
+    return header[:at] + extra + header[at:], merged
 
 
 def _dask_client(scheduler: str):
@@ -252,34 +313,50 @@ def _dask_client(scheduler: str):
         ) from None
 
 
+def _fingerprint(job: FlightJob) -> str:
+    """The job's fingerprint: its input, map, the camera and ground truth it will use, settings."""
+    inp = Path(job.input_path)
+    return flight_fingerprint(
+        inp,
+        job.map_path,
+        job.camera_path or _beside(inp, "camera.yaml") or None,
+        job.gt_path or _beside(inp, "groundtruth.tum") or None,
+        {k: getattr(job, k) for k in _RESULT_FIELDS},
+    )
+
+
 def _jobs(
     inputs: list[str | os.PathLike],
     names: list[str],
     map_path: str | os.PathLike,
     out: Path,
     options: FlightJob,
+    force: bool = False,
 ) -> tuple[dict[str, FlightOutcome], list[FlightJob]]:
     """(flight -> outcome of an earlier run, the flights still to run).
 
     ``options`` holds the settings shared by every flight (its flight and
-    paths are ignored).
+    paths are ignored). A finished flight is run again when its fingerprint
+    changed (or was never stored), or with ``force``.
     """
     done: dict[str, FlightOutcome] = {}
     todo: list[FlightJob] = []
     for name, inp in zip(names, inputs, strict=True):
-        earlier = read_done(out / name)
-        if earlier is not None:
+        job = replace(
+            options,
+            flight=name,
+            input_path=str(Path(inp).resolve()),
+            map_path=str(Path(map_path).resolve()),
+            out_dir=str((out / name).resolve()),
+        )
+        job = replace(job, fingerprint=_fingerprint(job))
+        earlier = None if force else read_done(out / name)
+        if earlier is not None and stored_fingerprint(out / name / DONE_MARKER) == job.fingerprint:
             done[name] = earlier
             continue
-        todo.append(
-            replace(
-                options,
-                flight=name,
-                input_path=str(Path(inp).resolve()),
-                map_path=str(Path(map_path).resolve()),
-                out_dir=str((out / name).resolve()),
-            )
-        )
+        if earlier is not None:
+            log.info("flight %s: input, map, camera, settings or version changed: redone", name)
+        todo.append(job)
     return done, todo
 
 
@@ -326,8 +403,10 @@ def run_batch(
     scheduler: str | None = None,
     progress: bool = True,
     runner: Callable[[FlightJob], FlightOutcome] = run_flight,
+    force: bool = False,
+    root: str | os.PathLike | None = None,
 ) -> list[FlightOutcome]:
-    """Run every flight not finished yet and write ``summary.csv``.
+    """Run every flight not finished yet (or changed since) and write ``summary.csv``.
 
     Args:
         inputs: the flights (videos, image folders, MCAP logs).
@@ -340,6 +419,10 @@ def run_batch(
         scheduler: ``tcp://host:port`` of a Dask scheduler instead of the local pool.
         progress: one tqdm bar over flights.
         runner: the per-flight function (picklable; tests swap it).
+        force: run every flight again, finished or not.
+        root: name each flight by its input's path below this folder (see
+            ``flight_names``), so that names do not depend on which flights
+            are passed together.
 
     Returns:
         One outcome per input, in input order.
@@ -348,7 +431,7 @@ def run_batch(
         raise InputError("no flights given")
     load_map(map_path)  # fail once, early, on a bad map
     out = ensure_dir(out_dir)
-    names = flight_names(inputs)
+    names = flight_names(inputs, root)
     options = FlightJob(
         flight="",
         input_path="",
@@ -360,7 +443,7 @@ def run_batch(
         with_images=with_images,
         plots=plots,
     )
-    outcomes, todo = _jobs(inputs, names, map_path, out, options)
+    outcomes, todo = _jobs(inputs, names, map_path, out, options, force)
     bar = tqdm(
         total=len(inputs),
         initial=len(outcomes),

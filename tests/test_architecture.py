@@ -9,7 +9,8 @@ Layers, bottom-up (docs/architecture.md draws them):
     4 io          signpose.io.*: one module per file format
     5 sim         signpose.sim.*: simulated flights
     6 training    signpose.training.*: offline cascade training
-    7 app         signpose.pipeline, signpose.batch, signpose.plots, signpose.report_html
+    7 app         signpose.pipeline, signpose.batch, signpose.plots, signpose.report_html,
+                  signpose.fingerprint
     8 cli         signpose.cli.*
 
 A module may import its own subpackage or any lower layer, never a higher one
@@ -40,6 +41,7 @@ LAYERS: tuple[tuple[str, int], ...] = (
     ("signpose.pipeline", 7),
     ("signpose.batch", 7),
     ("signpose.plots", 7),
+    ("signpose.fingerprint", 7),
     ("signpose.report_html", 7),
     ("signpose.cli", 8),
 )

@@ -16,9 +16,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "batch",
         help="run many flights in parallel (locally or on a Dask cluster)",
         description="Run every flight like `signpose run`, each into DIR/<flight>/, and write "
-        "DIR/summary.csv. A failed flight is recorded and the rest go on; a rerun skips "
-        "finished flights. The camera defaults to camera.yaml beside each input (else the "
-        "log's calibration) and groundtruth.tum beside an input is compared with.",
+        "DIR/summary.csv. A failed flight is recorded and the rest go on; a rerun skips a "
+        "finished flight only when its input, map, camera, ground truth, --topic/--fps and the "
+        "signpose version are unchanged (--force redoes all), and keeps the summary rows of "
+        "flights not passed this time. The camera defaults to camera.yaml beside each input "
+        "(else the log's calibration) and groundtruth.tum beside an input is compared with.",
     )
     p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT", help="flights")
     p.add_argument("--map", type=Path, required=True, help="sign map YAML")
@@ -33,6 +35,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--scheduler",
         metavar="tcp://HOST:PORT",
         help="run on this Dask distributed scheduler (pip install signpose[dask])",
+    )
+    p.add_argument("--force", action="store_true", help="run every flight again, finished or not")
+    p.add_argument(
+        "--root",
+        type=Path,
+        help="name each flight by its input's path below ROOT (ROOT/f1/video.mp4 -> f1_video), "
+        "the same whichever flights are passed; default: the input's name",
     )
     add_quiet(p)
     p.set_defaults(func=run)
@@ -53,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
         jobs=args.jobs,
         scheduler=args.scheduler,
         progress=not args.quiet,
+        force=args.force,
+        root=args.root,
     )
     failed = [o for o in outcomes if o.status is FlightStatus.FAILED]
     skipped = sum(o.skipped for o in outcomes)
