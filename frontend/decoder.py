@@ -272,7 +272,7 @@ class DecoderSettings:
     min_direction_margin: float = 0.15
     min_axis_ratio: float = 0.4
     min_fill: float = 0.25
-    max_black_frac: float = 0.35
+    max_black_frac: float = 0.25
     min_white_frac: float = 0.55
     edge_margin_px: float = 0.0
     thresholds: tuple[str, ...] = ("mean", "otsu", "high", "adaptive", "open")
@@ -1316,7 +1316,7 @@ def _occlusion(
     # seen in front (a black bar that may be behind leaves it alone).
     front_hits = occlusion.crossed([b for b in bands if b.in_front], _PART_CENTRES, _PART_HALF)
     dark_inside = occlusion.interior_not_white(
-        g, image_H_sign, _PART_QUADS[white], reading.black, reading.white
+        g, image_H_sign, _PART_QUADS[white], reading.black, reading.white, np.equal(white, 1)
     )
     covered = {p for p, d in zip(white, dark_inside.tolist(), strict=True) if d}
     covered |= {p for p in white if front_hits[p]}

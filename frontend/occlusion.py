@@ -61,10 +61,15 @@ _BAR_LEVEL_MATCH = 0.2
 # Half the width of a bar that can hide a coded slot (0.16 x 0.21 diameters),
 # less a margin for blur and for a run's angular quantisation [diameters].
 _HIDING_HALF_WIDTH = 0.055
+# A print-black "band" wider than this is dark background, not a member
+# (pylon members are up to about a third of a sign's diameter) [diameters].
+_MAX_BAR_HALF_WIDTH = 0.2
 # Points along a chord checked for darkness, and the chord's inner extent.
 _N_CHORD = 17
 _CHORD_INNER = 0.47
-# White-part interior grid (fractions of the part, inset from its edges).
+# White-part interior grid (fractions of the part, inset from its edges), and
+# the white fraction below which a sample there is covered.
+_COVERED_INSIDE = 0.35
 _INSET = np.linspace(0.2, 0.8, 4)
 # Polar grid over the face for unexplained white.
 _GRID_RADII = np.linspace(0.07, 0.45, 10)
@@ -250,7 +255,7 @@ def dark_bands(
         # A bar as black as the print looks the same in front and behind: it
         # counts when it is wide enough to hide a whole coded slot and shows a
         # bar's straight, parallel edges outside the rim.
-        wide = band.half_width >= _HIDING_HALF_WIDTH
+        wide = _HIDING_HALF_WIDTH <= band.half_width <= _MAX_BAR_HALF_WIDTH
         if not (over_white or distinct) and wide:
             wide = _looks_like_a_bar(gray, image_H_sign, band, black, contrast)
         if over_white or distinct or wide:
@@ -267,20 +272,39 @@ def crossed(bands: list[Band], centres: np.ndarray, half_sizes: np.ndarray) -> n
 
 
 def interior_not_white(
-    gray: np.ndarray, image_H_sign: np.ndarray, quads: np.ndarray, black: float, white: float
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    quads: np.ndarray,
+    black: float,
+    white: float,
+    thin: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(P,) whether each white part (quads (P, 4, 2) [diameters]) is dark anywhere inside."""
-    a, b = np.meshgrid(_INSET, _INSET)
-    a, b = a.ravel()[:, None], b.ravel()[:, None]
-    pts = []
-    for q in quads:
+    """(P,) whether each white part is dark somewhere inside.
+
+    Args:
+        quads: (P, 4, 2) the parts' corners [diameters], q0 -> q1 along the
+            part's length, q0 -> q3 across it.
+        thin: (P,) parts too narrow for a grid across (the directional
+            rectangle): sampled on their centre line only.
+    """
+    thin = np.zeros(len(quads), bool) if thin is None else thin
+    pts, counts = [], []
+    for q, is_thin in zip(quads, thin.tolist(), strict=True):
+        a, b = np.meshgrid(_INSET, [0.5] if is_thin else _INSET)
+        a, b = a.ravel()[:, None], b.ravel()[:, None]
         # Bilinear points inside the quad, inset from its edges.
         pts.append(
             (1 - a) * (1 - b) * q[0] + a * (1 - b) * q[1] + a * b * q[2] + (1 - a) * b * q[3]
         )
-    pts = np.concatenate(pts)
-    frac = (_sample(gray, _project(image_H_sign, pts)) - black) / max(white - black, 1e-6)
-    return (frac.reshape(len(quads), -1) < 0.5).any(axis=1)
+        counts.append(len(a))
+    frac = (_sample(gray, _project(image_H_sign, np.concatenate(pts))) - black) / max(
+        white - black, 1e-6
+    )
+    out, start = [], 0
+    for n in counts:
+        out.append(bool((frac[start : start + n] < _COVERED_INSIDE).any()))
+        start += n
+    return np.array(out)
 
 
 _GRID = np.concatenate(
