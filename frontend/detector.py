@@ -340,7 +340,11 @@ class SignDetector:
             raise InputError(f"{path}: cascade file not found")
         self.cascade_path = path
         self.settings = settings or DetectorSettings()
-        self._cascade = cv2.CascadeClassifier(str(path))
+        try:
+            self._cascade = cv2.CascadeClassifier(str(path))
+        except (cv2.error, SystemError) as exc:  # OpenCV's XML parser on a malformed file
+            why = str(exc.__cause__ or exc).strip().splitlines()[-1].split("error: ", 1)[-1]
+            raise InputError(f"{path}: not a readable OpenCV cascade XML ({why})") from None
         if self._cascade.empty():
             raise InputError(f"{path}: not an OpenCV cascade classifier XML")
 

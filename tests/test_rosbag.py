@@ -9,6 +9,7 @@ PNGs read as a folder.
 from __future__ import annotations
 
 import os
+import random
 import shutil
 import sqlite3
 from pathlib import Path
@@ -522,3 +523,35 @@ def test_a_bag_keeps_its_own_clock(tmp_path):
     with pytest.raises(InputError, match="a log has its own times"):
         open_source(bag, start_ns=10**18)
     assert open_source(bag).clock == "log"
+
+
+BAG_FUZZ_CASES = 60
+
+
+def test_damaged_bags_raise_only_input_error(tmp_path):
+    """Bytes cut, flipped or overwritten in a bag's files: InputError or reported problems."""
+    rng = random.Random(13)
+    sources = [
+        write_bag(tmp_path / f"{s}_{c}", _images(4), storage=s, compression=c)
+        for s in sorted(STORAGES)
+        for c in sorted(COMPRESSIONS)
+    ]
+    escaped = []
+    for case in range(BAG_FUZZ_CASES):
+        bag = shutil.copytree(rng.choice(sources), tmp_path / f"case{case}")
+        target = rng.choice(sorted(bag.iterdir()))
+        data = bytearray(target.read_bytes())
+        if rng.random() < 0.3:
+            del data[rng.randrange(len(data)) :]
+        else:
+            for _ in range(rng.randint(1, 20)):
+                data[rng.randrange(len(data))] = rng.randrange(256)
+        target.write_bytes(bytes(data))
+        try:
+            list(open_source(bag))
+        except InputError:
+            pass
+        except Exception as exc:  # noqa: BLE001 - what the test looks for
+            escaped.append(f"{target.name}: {type(exc).__name__}: {exc}")
+        shutil.rmtree(bag)
+    assert not escaped, escaped[:3]

@@ -47,6 +47,8 @@ CDR_ENCODING = "cdr"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 _SQLITE_HEADER_BYTES = 100
 _COPY_CHUNK_BYTES = 1 << 20
+# What sqlite3 raises for a damaged file (its messages may hold the damaged bytes).
+_SQLITE_ERRORS = (sqlite3.Error, UnicodeDecodeError)
 
 
 @dataclass(frozen=True)
@@ -295,7 +297,9 @@ class Db3Log:
         self.channels = self._read_channels()
 
     def _connect(self) -> sqlite3.Connection:
-        return sqlite3.connect(f"file:{self._file}?mode=ro", uri=True)
+        con = sqlite3.connect(f"file:{self._file}?mode=ro", uri=True)
+        con.text_factory = _text  # damaged text is read, not raised
+        return con
 
     def _read_topics(self) -> dict[int, tuple[str, str, str]]:
         try:
@@ -303,7 +307,7 @@ class Db3Log:
                 rows = con.execute(
                     "SELECT id, name, type, serialization_format FROM topics ORDER BY id"
                 ).fetchall()
-        except sqlite3.DatabaseError as exc:
+        except _SQLITE_ERRORS as exc:
             if self._cut_note is not None:
                 raise InputError(
                     f"{self.path}: {self._cut_note}, before its first message; nothing to read"
@@ -312,7 +316,11 @@ class Db3Log:
                 f"{self.path}: not a readable rosbag2 sqlite3 file ({exc}); "
                 "check the file or record the bag again"
             ) from None
-        return {int(i): (str(name), str(kind), str(fmt)) for i, name, kind, fmt in rows}
+        return {
+            i: (str(name), str(kind), str(fmt))
+            for i, name, kind, fmt in rows
+            if isinstance(i, int)  # a damaged row has no id: its topic cannot be read
+        }
 
     def _read_channels(self) -> tuple[LogChannel, ...]:
         counts: dict[int, int] | None
@@ -321,8 +329,8 @@ class Db3Log:
                 rows = con.execute(
                     "SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id"
                 ).fetchall()
-            counts = {int(tid): int(n) for tid, n in rows}
-        except sqlite3.DatabaseError:
+            counts = {tid: n for tid, n in rows if isinstance(tid, int)}
+        except _SQLITE_ERRORS:
             counts = None  # damaged: counted while reading
         if self._cut_note is not None:
             counts = None
@@ -350,8 +358,11 @@ class Db3Log:
                 name, kind, _ = wanted[tid]
                 if tid not in decoders:
                     decoders[tid] = _decoder_or_none(kind)
-                yield self._decoded(name, kind, int(log_time_ns), data, decoders[tid])
-        except sqlite3.DatabaseError as exc:
+                if not isinstance(log_time_ns, int) or not isinstance(data, bytes):
+                    yield LogMessage(name, kind, 0, None, "damaged row (no time or no data)")
+                    continue
+                yield self._decoded(name, kind, log_time_ns, data, decoders[tid])
+        except _SQLITE_ERRORS as exc:
             where = self._cut_note or "the file is damaged"
             self.problem = f"log stopped after {read} messages ({where}: {exc})"
         finally:
@@ -369,6 +380,10 @@ class Db3Log:
         except Exception as exc:  # noqa: BLE001 - one bad message is a value
             text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             return LogMessage(topic, kind, log_time_ns, None, f"cannot decode ({text})")
+
+
+def _text(raw: bytes) -> str:
+    return raw.decode("utf-8", errors="replace")
 
 
 def _decoder_or_none(msgtype: str) -> Callable[[bytes], Any] | None:
