@@ -28,10 +28,15 @@ from tqdm import tqdm
 
 from signpose.core.errors import InputError, SignposeError
 from signpose.core.fileio import atomic_write, ensure_dir
-from signpose.fingerprint import FINGERPRINT_KEY, flight_fingerprint, stored_fingerprint
+from signpose.fingerprint import (
+    FINGERPRINT_KEY,
+    content_digest,
+    flight_fingerprint,
+    stored_fingerprint,
+)
 from signpose.io.camera_file import load_camera
 from signpose.maps.loader import load_map
-from signpose.pipeline import RunSettings, run
+from signpose.pipeline import ObserveSettings, RunSettings, make_detector, run
 from signpose.report_html import write_batch_index
 
 log = logging.getLogger(__name__)
@@ -73,6 +78,7 @@ class FlightJob:
         fps: frame rate for an image folder without times, or 0.
         with_images: put images into result.mcap.
         plots: write the PNG plots.
+        cascade_path: detector cascade XML, or "" (the bundled one).
         fingerprint: digest of what the outputs are made from (kept in the done marker).
     """
 
@@ -86,6 +92,7 @@ class FlightJob:
     fps: float = 0.0
     with_images: bool = False
     plots: bool = True
+    cascade_path: str = ""
     fingerprint: str = ""
 
 
@@ -185,7 +192,11 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             gt_path=gt_path or None,
             topic=job.topic or None,
             fps=job.fps or None,
-            settings=RunSettings(with_images=job.with_images, plots=job.plots),
+            settings=RunSettings(
+                observe=ObserveSettings(cascade_path=job.cascade_path),
+                with_images=job.with_images,
+                plots=job.plots,
+            ),
             progress=False,
         )
         outcome = FlightOutcome(
@@ -321,7 +332,8 @@ def _fingerprint(job: FlightJob) -> str:
         job.map_path,
         job.camera_path or _beside(inp, "camera.yaml") or None,
         job.gt_path or _beside(inp, "groundtruth.tum") or None,
-        {k: getattr(job, k) for k in _RESULT_FIELDS},
+        {k: getattr(job, k) for k in _RESULT_FIELDS}
+        | {"cascade": content_digest(job.cascade_path)},
     )
 
 
@@ -405,6 +417,7 @@ def run_batch(
     runner: Callable[[FlightJob], FlightOutcome] = run_flight,
     force: bool = False,
     root: str | os.PathLike | None = None,
+    cascade_path: str | os.PathLike | None = None,
 ) -> list[FlightOutcome]:
     """Run every flight not finished yet (or changed since) and write ``summary.csv``.
 
@@ -423,13 +436,17 @@ def run_batch(
         root: name each flight by its input's path below this folder (see
             ``flight_names``), so that names do not depend on which flights
             are passed together.
+        cascade_path: detector cascade XML for every flight; None: the bundled one.
 
     Returns:
         One outcome per input, in input order.
     """
     if not inputs:
         raise InputError("no flights given")
-    load_map(map_path)  # fail once, early, on a bad map
+    load_map(map_path)  # fail once, early, on a bad map or cascade
+    cascade = str(Path(cascade_path).resolve()) if cascade_path else ""
+    if cascade:
+        make_detector(ObserveSettings(cascade_path=cascade))
     out = ensure_dir(out_dir)
     names = flight_names(inputs, root)
     options = FlightJob(
@@ -442,6 +459,7 @@ def run_batch(
         fps=float(fps or 0.0),
         with_images=with_images,
         plots=plots,
+        cascade_path=cascade,
     )
     outcomes, todo = _jobs(inputs, names, map_path, out, options, force)
     bar = tqdm(

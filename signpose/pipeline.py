@@ -1060,11 +1060,12 @@ def run_demo(
     height: int = 1080,
     with_images: bool = False,
     progress: bool = True,
+    cascade_path: str = "",
 ) -> DemoResult:
     """Simulate the bundled pylon flight into ``out_dir/flight`` and run everything on it.
 
     Results (observations, trajectories, comparison, plots, result.mcap) go
-    into ``out_dir`` itself.
+    into ``out_dir`` itself. ``cascade_path``: detector cascade XML ("" = bundled).
     """
     out = ensure_dir(out_dir)
     sign_map = load_map(bundled_map_path())
@@ -1080,7 +1081,9 @@ def run_demo(
         out,
         camera=sim.camera,
         gt_path=sim.groundtruth_path,
-        settings=RunSettings(with_images=with_images),
+        settings=RunSettings(
+            observe=ObserveSettings(cascade_path=cascade_path), with_images=with_images
+        ),
         progress=progress,
     )
     return DemoResult(sim.out_dir, result)

@@ -11,6 +11,7 @@ import argparse
 import importlib
 import logging
 import sys
+from pathlib import Path
 
 from signpose import __version__
 from signpose.core.errors import SignposeError
@@ -80,6 +81,14 @@ def main(argv: list[str] | None = None) -> int:
 
 def add_quiet(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+
+
+def add_cascade(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--cascade",
+        type=Path,
+        help="detector cascade XML, e.g. from 'signpose train-detector' (default: the bundled one)",
+    )
 
 
 def codes_arg(text: str) -> tuple[str, ...]:

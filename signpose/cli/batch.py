@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from signpose.batch import SUMMARY_NAME, FlightStatus, run_batch
-from signpose.cli import add_quiet
+from signpose.cli import add_cascade, add_quiet
 from signpose.core.errors import InputError
 
 
@@ -43,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="name each flight by its input's path below ROOT (ROOT/f1/video.mp4 -> f1_video), "
         "the same whichever flights are passed; default: the input's name",
     )
+    add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -64,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         force=args.force,
         root=args.root,
+        cascade_path=args.cascade,
     )
     failed = [o for o in outcomes if o.status is FlightStatus.FAILED]
     skipped = sum(o.skipped for o in outcomes)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from signpose import pipeline
-from signpose.cli import add_quiet
+from signpose.cli import add_cascade, add_quiet
 from signpose.cli.run import print_result
 
 
@@ -23,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=1920, help="image width [px]")
     p.add_argument("--height", type=int, default=1080, help="image height [px]")
     p.add_argument("--with-images", action="store_true", help="put the images into result.mcap")
+    add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -35,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
         height=args.height,
         with_images=args.with_images,
         progress=not args.quiet,
+        cascade_path=str(args.cascade or ""),
     )
     print_result(result.run)
     print(f"simulated flight in {result.flight_dir}; results in {result.run.out_dir}")

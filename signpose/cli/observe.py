@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from signpose import pipeline
-from signpose.cli import add_quiet, codes_arg
+from signpose.cli import add_cascade, add_quiet, codes_arg
 from signpose.core.errors import OutputError
 from signpose.io.camera_file import load_camera
 from signpose.io.sources import open_source
@@ -33,6 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--workers", type=int, default=0, help="frames detected at once (default: 2 if >1 core)"
     )
+    add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -47,7 +48,10 @@ def run(args: argparse.Namespace) -> int:
     if camera is None:
         camera = source.camera
     settings = pipeline.ObserveSettings(
-        codes=args.codes, tracking=not args.no_tracking, workers=args.workers
+        codes=args.codes,
+        tracking=not args.no_tracking,
+        workers=args.workers,
+        cascade_path=str(args.cascade or ""),
     )
     # Through the module, so that a test's stand-in for pipeline.observe is seen.
     result = pipeline.observe(source, sign_map, camera, settings, not args.quiet, out_path=args.out)

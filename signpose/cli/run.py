@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TextIO
 
 from signpose import pipeline
-from signpose.cli import add_quiet, codes_arg
+from signpose.cli import add_cascade, add_quiet, codes_arg
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.smoother import SmootherSettings
 from signpose.io.camera_file import load_camera
@@ -45,6 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="skip the smoother's marginal sigmas (faster on long flights; no sigma bands)",
     )
+    add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -72,7 +73,10 @@ def run(args: argparse.Namespace) -> int:
     camera = load_camera(args.camera) if args.camera else None
     settings = RunSettings(
         observe=ObserveSettings(
-            codes=args.codes, tracking=not args.no_tracking, workers=args.workers
+            codes=args.codes,
+            tracking=not args.no_tracking,
+            workers=args.workers,
+            cascade_path=str(args.cascade or ""),
         ),
         estimator=EstimatorSettings(
             solver=args.solver, smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)
