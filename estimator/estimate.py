@@ -17,6 +17,8 @@ import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
 from signpose.estimator.perframe import FramePose, PerFrameSettings, PoseFailure, run_per_frame
 from signpose.estimator.projection import (
+    MIN_DEPTH_M,
+    cam_points,
     pixels_and_pose_jacobian,
     pose_covariance,
     position_cov_world,
@@ -51,8 +53,8 @@ from signpose.estimator.status import (
     worst_axis_sigma,
 )
 from signpose.estimator.tuning import MotionChoice, TuningSettings, tune_motion_prior
-from signpose.frontend.observations import FrameObservations
-from signpose.maps.loader import SignMap
+from signpose.frontend.observations import FrameObservations, SignObservation
+from signpose.maps.loader import MapSign, SignMap
 
 from signpose.core.errors import InputError
 
@@ -337,6 +339,88 @@ def check_inputs(
             f"{src}: the map shares no code with the observations in {obs_source} "
             f"(observed {', '.join(sorted(seen))}); pass the map of this site"
         )
+    shared = sorted(seen & set(sign_map.codes))
+    if seen and len(shared) < MIN_SHARED_SIGNS:
+        src = sign_map.source or "map"
+        raise InputError(
+            f"{src}: the observations in {obs_source} share only sign {', '.join(shared)} "
+            f"with the map (at least {MIN_SHARED_SIGNS} are needed); pass the map of this site"
+        )
+
+
+# A flight must share this many signs with the map: fewer cannot fix a pose.
+MIN_SHARED_SIGNS = 3
+# An oriented sign is wrong in the map when the camera is behind it in more than
+# this share of the frames that see it, or when the median residual of its
+# off-centre keypoints exceeds this share of its apparent diameter while its
+# centre fits (a sign turned 180 degrees moves them by most of a diameter; in
+# diameters, not sigmas, so that a decoder's optimistic sigma_px cannot trip it).
+ORIENTATION_MAX_BEHIND = 0.5
+ORIENTATION_MAX_DIAMETERS = 0.25
+ORIENTATION_MIN_FRAMES = 5
+
+
+def _median(values: list[float]) -> float:
+    return float(np.median(values)) if values else 0.0
+
+
+def _sign_fit(
+    sign: MapSign,
+    uses: list[tuple[int, SignObservation]],
+    world_T_cam: np.ndarray,
+    camera: CameraModel,
+) -> tuple[float, float, float]:
+    """(share of frames seen from behind, median centre and off-centre residual [diameters])."""
+    kps = sign.keypoints_world()
+    behind, centre_d, other_d = [], [], []
+    for i, obs in uses:
+        T = world_T_cam[i]
+        behind.append(float(sign.normal @ (T[:3, 3] - sign.center_m)) <= 0.0)
+        names = [n for n in obs.keypoints_px if n in kps]
+        raw = np.array([obs.keypoints_px[n] for n in names], dtype=float).reshape(-1, 2)
+        uv, _, _ = pixels_and_pose_jacobian(camera, T, np.array([kps[n] for n in names]))
+        depth = max(float(cam_points(T, sign.center_m[None])[0, 2]), MIN_DEPTH_M)
+        diameter_px = sign.diameter_m * camera.fx / depth
+        d = np.linalg.norm(undistort_px(camera, raw) - uv, axis=1) / diameter_px
+        for n, dk in zip(names, d, strict=True):
+            (centre_d if n == "center" else other_d).append(float(dk))
+    return float(np.mean(behind)), _median(centre_d), _median(other_d)
+
+
+def check_orientations(
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    m: MethodEstimate,
+) -> None:
+    """InputError naming an oriented sign that the flight sees from behind or turned.
+
+    Args:
+        frames: the observations; sign_map: the map; camera: the camera.
+        m: a method's trajectory (the smoothed one) to look from.
+    """
+    uses: dict[str, list] = {}
+    for i, f in enumerate(frames):
+        if m.valid[i] and m.status[i] is PoseStatus.OK:
+            for obs in f.signs:
+                uses.setdefault(obs.code, []).append((i, obs))
+    src = sign_map.source or "map"
+    for sign in sign_map.signs:
+        seen = uses.get(sign.code, [])
+        if not sign.oriented or len(seen) < ORIENTATION_MIN_FRAMES:
+            continue
+        behind, centre_d, other_d = _sign_fit(sign, seen, m.world_T_cam, camera)
+        if behind > ORIENTATION_MAX_BEHIND:
+            raise InputError(
+                f"{src}: sign {sign.code} is seen from behind in {100 * behind:.0f} % of the "
+                "frames that see it; check its 'normal' (it points into the face?)"
+            )
+        if other_d > ORIENTATION_MAX_DIAMETERS > centre_d:
+            raise InputError(
+                f"{src}: the keypoints of sign {sign.code} do not fit its orientation "
+                f"(median miss {other_d:.2f} sign diameters, its centre {centre_d:.2f}); "
+                "check its 'up' and 'normal'"
+            )
 
 
 def _outliers(
@@ -660,6 +744,8 @@ def estimate_trajectories(
         timing.update(run.timing_s)
         down, mis, rejected_obs = run.downweighted, run.misdecoded, run.rejected
         motion = run.motion
+    if "smoothed" in methods:
+        check_orientations(frames, sign_map, camera, methods["smoothed"])
     rejected = ()
     if "baseline" in per_frame:
         rejected = tuple(

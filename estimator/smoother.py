@@ -461,16 +461,20 @@ class _GraphBuilder:
                 gtsam.ImuFactor(X(i - 1), V(i - 1), X(i), V(i), bias_key, self._pim_cache[key])
             )
 
-    def first_priors(self, pose0: gtsam.Pose3, graph: gtsam.NonlinearFactorGraph) -> None:
+    def first_priors(
+        self, pose0: gtsam.Pose3, graph: gtsam.NonlinearFactorGraph, i: int = 0
+    ) -> None:
+        """The weak priors on a flight's first frame i (and, for frame 0, the IMU bias)."""
         s = self.s
         sig = np.array([s.first_sigma_rad] * 3 + [s.first_sigma_m] * 3)
-        graph.add(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        graph.add(gtsam.PriorFactorPose3(X(i), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
         if s.motion == CONSTANT_VELOCITY:
             graph.add(
                 gtsam.PriorFactorVector(
-                    V(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, s.first_sigma_mps)
+                    V(i), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, s.first_sigma_mps)
                 )
             )
+        if s.motion == CONSTANT_VELOCITY and i == 0:
             graph.add(
                 gtsam.PriorFactorConstantBias(
                     BIAS_KEY,
@@ -551,13 +555,16 @@ class _BatchGraph:
     projection_factor: np.ndarray  # (M,) factor index of each measurement (-1: none)
 
 
-def _batch_graph(b: _GraphBuilder, init: np.ndarray, stamps_s: np.ndarray) -> _BatchGraph:
-    """Every factor of the flight and the initial values."""
+def _batch_graph(
+    b: _GraphBuilder, init: np.ndarray, stamps_s: np.ndarray, starts: Sequence[int] = (0,)
+) -> _BatchGraph:
+    """Every factor of the flight (or of flights starting at frames ``starts``), initial values."""
     meas, s = b.m, b.s
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     b.landmark_factors(graph, values)
-    b.first_priors(gtsam.Pose3(init[0]), graph)
+    for i in starts:
+        b.first_priors(gtsam.Pose3(init[i]), graph, i)
     vel = _velocities(init, stamps_s) if s.motion == CONSTANT_VELOCITY else None
     if s.motion == CONSTANT_VELOCITY:
         values.insert(BIAS_KEY, gtsam.imuBias.ConstantBias())
@@ -569,7 +576,7 @@ def _batch_graph(b: _GraphBuilder, init: np.ndarray, stamps_s: np.ndarray) -> _B
         first = graph.size()
         b.projection_factors(i, graph)
         factor[b.measurement_ids(i)] = np.arange(first, graph.size())
-        if i > 0:
+        if i > 0 and i not in starts:
             b.motion_factor(i, graph)
     return _BatchGraph(graph, values, factor)
 
@@ -1071,3 +1078,63 @@ def _motion_log_det(b: _GraphBuilder, i: int) -> float:
     b.motion_factor(i, graph)
     cov = b._pim_cache[round(dt, 9)].preintMeasCov()
     return float(np.linalg.slogdet(cov)[1])
+
+
+@dataclass(frozen=True)
+class MapSolution:
+    """Sign centres solved jointly from several flights (rigid landmark model).
+
+    Attributes:
+        codes: (K,) the map's codes, sorted.
+        centres_world: (K, 3) estimated sign centres [m].
+        cov_world: (K, 3, 3) their posterior covariances [m^2].
+        world_T_cam: (N, 4, 4) every frame of every flight, flights one after another.
+    """
+
+    codes: tuple[str, ...]
+    centres_world: np.ndarray
+    cov_world: np.ndarray
+    world_T_cam: np.ndarray
+
+
+def solve_map(
+    meas: Measurements,
+    stamps_s: np.ndarray,
+    init_world_T_cam: np.ndarray,
+    camera: CameraModel,
+    settings: SmootherSettings,
+    flight_starts: Sequence[int],
+    sign_shift_m: np.ndarray | None = None,
+) -> MapSolution:
+    """One graph over several flights sharing the signs: one trajectory per flight.
+
+    ``meas`` holds the flights' frames one after another; a flight starts at
+    each index of ``flight_starts`` (no motion factor across; its own weak
+    first-frame priors). Landmarks are rigid signs with the survey priors;
+    ``sign_shift_m`` (K, 3) starts each sign (codes sorted) that far from the
+    survey (e.g. triangulated from the flights), the priors stay at the survey.
+    """
+    s = replace(settings, landmarks=RIGID, kernel=HUBER, compute_sigmas=False)
+    b = _GraphBuilder(meas, stamps_s, camera, s)
+    g = _batch_graph(b, np.asarray(init_world_T_cam, float), stamps_s, tuple(flight_starts))
+    if sign_shift_m is not None:
+        sign, centre = b.signs()
+        for k, c in enumerate(centre):
+            g.values.update(S(k), c + sign_shift_m[k])
+        for j, k in enumerate(sign):
+            g.values.update(L(j), meas.landmark_world[j] + sign_shift_m[k])
+    params = gtsam.LevenbergMarquardtParams()
+    n = meas.n_frames
+    order = segmented_ordering(n, len(meas.landmark_code), s.motion, s.segment_frames)
+    params.setOrdering(b.ordered(order))
+    params.setMaxIterations(s.lm_max_iterations)
+    params.setRelativeErrorTol(s.lm_rel_tol)
+    result, _, _ = _optimize(g, params, s)
+    codes = tuple(sorted(set(meas.landmark_code)))
+    tree = g.graph.linearize(result).eliminateMultifrontal(
+        b.ordered(chain_ordering(n, len(meas.landmark_code), s.motion))
+    )
+    centres = np.array([result.atPoint3(S(k)) for k in range(len(codes))]).reshape(-1, 3)
+    cov = np.array([tree.marginalCovariance(S(k)) for k in range(len(codes))]).reshape(-1, 3, 3)
+    poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
+    return MapSolution(codes=codes, centres_world=centres, cov_world=cov, world_T_cam=poses)

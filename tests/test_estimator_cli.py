@@ -129,3 +129,48 @@ def test_map_fixed_and_fixed_motion_prior_options(flight, tmp_path, capsys):
     assert report["motion_prior"] is None
     statuses = set(read_trajectory_csv(out / "trajectory.csv")["smoothed"]["status"])
     assert statuses <= {"ok", "weak", "bridged", "suspect"} and "ok" in statuses
+
+
+def _edited_map(tmp_path, edit) -> str:
+    from dataclasses import replace
+
+    from signpose.maps.loader import load_map, write_map
+
+    m = load_map(bundled_map_path())
+    path = tmp_path / "edited.yaml"
+    write_map(path, replace(m, signs=tuple(edit(s) for s in m.signs)))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (lambda s: s if s.code != "0010" else _flipped(s, normal=True), ("0010", "behind")),
+        (lambda s: s if s.code != "0100" else _flipped(s, normal=False), ("0100", "orientation")),
+    ],
+)
+def test_map_orientation_inconsistent_with_the_flight(flight, tmp_path, capsys, edit, words):
+    obs, cam, _, _ = flight
+    path = _edited_map(tmp_path, edit)
+    err = _run_error(_estimate_argv(obs, path, cam, tmp_path / "o"), capsys)
+    assert str(path) in err and all(w in err for w in words)
+
+
+def _flipped(sign, normal: bool):
+    from dataclasses import replace
+
+    if normal:  # the normal into the face: the flight sees the sign from behind
+        return replace(sign, normal=-sign.normal)
+    return replace(sign, up=-sign.up)  # turned 180 degrees about its normal
+
+
+def test_flight_sharing_fewer_than_three_signs(flight, tmp_path, capsys):
+    obs, cam, _, _ = flight
+    m = tmp_path / "two.yaml"
+    m.write_text(
+        'frame: two\nsigns:\n  - code: "0001"\n    center_m: [-1.8, 0, 17.5]\n'
+        '    diameter_m: 0.8\n    sigma_m: 0.01\n  - code: "0010"\n    center_m: [0.2, 0.3, 18]\n'
+        "    diameter_m: 0.8\n    sigma_m: 0.01\n"
+    )
+    err = _run_error(_estimate_argv(obs, m, cam, tmp_path / "o"), capsys)
+    assert str(m) in err and "0001, 0010" in err and "at least 3" in err

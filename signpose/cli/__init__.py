@@ -27,6 +27,7 @@ COMMANDS = (
     "train_detector",
     "observe",
     "estimate",
+    "refine_map",
     "compare",
     "run",
     "batch",

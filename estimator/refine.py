@@ -1,0 +1,234 @@
+"""A refined map from several flights of one site (the way TagSLAM and MarkerMapper build maps).
+
+Each flight is first estimated on its own (outliers removed as in
+``estimate_trajectories``); the keypoints that fit its smoothed trajectory
+then go into one graph: one trajectory per flight, the signs shared as rigid
+bodies with the survey priors (``smoother.solve_map``). Each sign's
+estimated centre comes with its posterior sigma, the number of frames that
+saw it and how far it moved against its survey sigma: a sign moved by more
+than ``moved_sigmas`` may have been re-hung. Orientations are the map's (not
+estimated).
+
+World frame: the map's; centres [m].
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from signpose.estimator.camera import CameraModel
+from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
+from signpose.estimator.smoother import (
+    Measurements,
+    collect_measurements,
+    solve_map,
+)
+from signpose.frontend.observations import FrameObservations
+from signpose.maps.loader import SignMap
+
+from signpose.core.errors import InputError
+
+# A sign whose centre moved by more than this many survey sigmas is named.
+MOVED_SIGMAS = 3.0
+# A sign's shift is fitted from at least this many keypoint observations, in
+# this many Gauss-Newton steps (the problem is nearly linear in the shift).
+SHIFT_MIN_MEASUREMENTS = 6
+SHIFT_ITERATIONS = 6
+
+
+@dataclass(frozen=True)
+class RefinedSign:
+    """One sign of the refined map.
+
+    Attributes:
+        code: the sign's code.
+        center_m: (3,) refined centre, world frame [m].
+        survey_center_m: (3,) the survey's centre [m].
+        sigma_m: worst-axis posterior sigma of the centre [m].
+        frames_seen: frames (over all flights) whose inliers include the sign.
+        moved_m: distance from the survey [m]; moved_sigmas: in survey sigmas.
+    """
+
+    code: str
+    center_m: np.ndarray
+    survey_center_m: np.ndarray
+    sigma_m: float
+    frames_seen: int
+    moved_m: float
+    moved_sigmas: float
+
+    def to_dict(self) -> dict:
+        return {
+            "code": self.code,
+            "center_m": [float(x) for x in self.center_m],
+            "survey_center_m": [float(x) for x in self.survey_center_m],
+            "sigma_m": self.sigma_m,
+            "frames_seen": self.frames_seen,
+            "moved_m": self.moved_m,
+            "moved_sigmas": self.moved_sigmas,
+        }
+
+
+@dataclass(frozen=True)
+class RefinedMap:
+    """The refined map and what changed.
+
+    Attributes:
+        sign_map: the map with refined centres and posterior sigma_m (signs
+            never seen keep their survey).
+        signs: per sign, as listed in the map.
+        moved: codes of the signs that moved by more than ``MOVED_SIGMAS``.
+    """
+
+    sign_map: SignMap
+    signs: tuple[RefinedSign, ...]
+    moved: tuple[str, ...]
+
+
+def _sign_shifts(
+    meas: Measurements, world_T_cam: np.ndarray, camera: CameraModel, k: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each sign moved rigidly to fit its observations from the fixed trajectory.
+
+    Gauss-Newton on the sign's translation with Tukey-style inlier selection
+    (a re-hung sign's observations are all outliers against the survey, so
+    they are tested against the sign where the flight sees it).
+
+    Returns:
+        ((K, 3) shift of each sign, codes sorted [m], (M,) inlier mask).
+    """
+    codes = sorted(set(meas.landmark_code))
+    lm_sign = np.array([codes.index(c) for c in meas.landmark_code])[meas.landmark]
+    shifts = np.zeros((len(codes), 3))
+    inlier = np.zeros(len(meas.frame), bool)
+    for s in range(len(codes)):
+        ids = np.nonzero(lm_sign == s)[0]
+        if len(ids) < SHIFT_MIN_MEASUREMENTS:
+            continue
+        shift, ok = _fit_shift(meas, ids, world_T_cam, camera, k)
+        shifts[s], inlier[ids] = shift, ok
+    return shifts, inlier
+
+
+def _fit_shift(
+    meas: Measurements, ids: np.ndarray, world_T_cam: np.ndarray, camera: CameraModel, k: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(3,) translation of one sign and (len(ids),) inliers; the median residual gates first."""
+    shift = np.zeros(3)
+    ok = np.ones(len(ids), bool)
+    T = world_T_cam[meas.frame[ids]]
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    sig = meas.sigma_px[ids, None]
+    norm = np.zeros(len(ids))
+    for _ in range(SHIFT_ITERATIONS):
+        pc = np.einsum("mji,mj->mi", R, meas.landmark_world[meas.landmark[ids]] + shift - t)
+        z = np.maximum(pc[:, 2], 1e-9)
+        uv = np.stack(
+            [camera.fx * pc[:, 0] / z + camera.cx, camera.fy * pc[:, 1] / z + camera.cy], 1
+        )
+        d_pi = np.zeros((len(ids), 2, 3))
+        d_pi[:, 0, 0], d_pi[:, 0, 2] = camera.fx / z, -camera.fx * pc[:, 0] / z**2
+        d_pi[:, 1, 1], d_pi[:, 1, 2] = camera.fy / z, -camera.fy * pc[:, 1] / z**2
+        J = np.einsum("mab,mcb->mac", d_pi, R) / sig[:, :, None]  # d(uv)/d(world point)
+        r = (meas.px[ids] - uv) / sig
+        norm = np.linalg.norm(r, axis=1)
+        ok = norm < max(k, 3.0 * float(np.median(norm)))
+        if ok.sum() < SHIFT_MIN_MEASUREMENTS:
+            break
+        step = np.linalg.lstsq(J[ok].reshape(-1, 3), r[ok].reshape(-1), rcond=None)[0]
+        shift = shift + step
+    return shift, ok & (norm < k)
+
+
+def _joined(parts: list[Measurements]) -> tuple[Measurements, list[int]]:
+    """The flights' measurements one after another (frames renumbered) and each start."""
+    starts, offset = [], 0
+    for m in parts:
+        starts.append(offset)
+        offset += m.n_frames
+    cat = np.concatenate
+    joined = replace(
+        parts[0],
+        frame=cat([m.frame + a for m, a in zip(parts, starts, strict=True)]),
+        landmark=cat([m.landmark for m in parts]),
+        px=cat([m.px for m in parts]).reshape(-1, 2),
+        sigma_px=cat([m.sigma_px for m in parts]),
+        sign_index=cat([m.sign_index for m in parts]),
+        n_frames=offset,
+    )
+    return joined, starts
+
+
+def check_flights_share_signs(flights: Sequence[Sequence[FrameObservations]], names) -> None:
+    """InputError when two flights share no code (flights of different sites)."""
+    seen = [{o.code for f in frames for o in f.signs} for frames in flights]
+    for k in range(1, len(seen)):
+        if not seen[k] & seen[0]:
+            raise InputError(
+                f"{names[k]}: shares no code with {names[0]}; refine-map needs flights of one site"
+            )
+
+
+def refine_map(
+    flights: Sequence[Sequence[FrameObservations]],
+    sign_map: SignMap,
+    camera: CameraModel,
+    settings: EstimatorSettings | None = None,
+) -> RefinedMap:
+    """Solve the flights jointly for the sign centres (see the module docstring)."""
+    s = settings or EstimatorSettings()
+    s = replace(s, methods=("smoothed",), smoother=replace(s.smoother, compute_sigmas=False))
+    parts, stamps, init = [], [], []
+    for frames in flights:
+        r = estimate_trajectories(frames, sign_map, camera, s, progress=False)
+        poses = r.methods["smoothed"].world_T_cam
+        meas = collect_measurements(frames, sign_map, camera)
+        _, keep = _sign_shifts(meas, poses, camera, s.smoother.tukey_k)
+        parts.append(
+            replace(
+                meas,
+                frame=meas.frame[keep],
+                landmark=meas.landmark[keep],
+                px=meas.px[keep],
+                sigma_px=meas.sigma_px[keep],
+                sign_index=meas.sign_index[keep],
+            )
+        )
+        stamps.append(np.array([f.stamp_ns for f in frames], dtype=np.float64) * 1e-9)
+        init.append(poses)
+    joined, starts = _joined(parts)
+    all_poses = np.concatenate(init)
+    shifts, _ = _sign_shifts(joined, all_poses, camera, s.smoother.tukey_k)
+    sol = solve_map(joined, np.concatenate(stamps), all_poses, camera, s.smoother, starts, shifts)
+    return _refined(sign_map, joined, sol.codes, sol.centres_world, sol.cov_world)
+
+
+def _refined(
+    sign_map: SignMap, meas: Measurements, codes, centres: np.ndarray, cov: np.ndarray
+) -> RefinedMap:
+    lm_code = np.array(meas.landmark_code)[meas.landmark]
+    out, signs, moved = [], [], []
+    for sign in sign_map.signs:
+        k = codes.index(sign.code)
+        frames_seen = len(np.unique(meas.frame[lm_code == sign.code]))
+        centre = centres[k] if frames_seen else sign.center_m
+        sigma = float(np.sqrt(np.max(np.diag(cov[k])))) if frames_seen else sign.sigma_m
+        dist = float(np.linalg.norm(centre - sign.center_m))
+        info = RefinedSign(
+            code=sign.code,
+            center_m=np.asarray(centre, float),
+            survey_center_m=sign.center_m,
+            sigma_m=sigma,
+            frames_seen=frames_seen,
+            moved_m=dist,
+            moved_sigmas=dist / sign.sigma_m,
+        )
+        signs.append(info)
+        if info.moved_sigmas > MOVED_SIGMAS:
+            moved.append(sign.code)
+        out.append(replace(sign, center_m=info.center_m, sigma_m=sigma))
+    return RefinedMap(
+        sign_map=replace(sign_map, signs=tuple(out)), signs=tuple(signs), moved=tuple(moved)
+    )

@@ -1,0 +1,72 @@
+"""signpose refine-map: sign centres from several flights of one site."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+from conftest import estimator_scene
+from signpose.estimator.refine import refine_map
+from signpose.maps.loader import load_map, write_map
+
+from signpose.cli import main
+from signpose.io.camera_file import write_camera_info
+from signpose.io.observations import write_observations
+
+
+def _flights(n=2):
+    out = []
+    for seed in range(n):
+        sign_map, camera, frames, _, _ = estimator_scene(
+            n_frames=30, sigma_px=0.3, seed=seed, flat=False
+        )
+        out.append(frames)
+    return sign_map, camera, out
+
+
+def _rehung(sign_map, code="0110", by=(0.0, 0.0, 0.15)):
+    """The survey of a site where one sign has since moved: the map says where it was."""
+    signs = tuple(
+        replace(s, center_m=s.center_m + np.array(by)) if s.code == code else s
+        for s in sign_map.signs
+    )
+    return replace(sign_map, signs=signs)
+
+
+def test_a_rehung_sign_is_found_and_the_rest_stay():
+    sign_map, camera, flights = _flights()
+    survey = _rehung(sign_map)
+    refined = refine_map(flights, survey, camera)
+    assert refined.moved == ("0110",)
+    by_code = {s.code: s for s in refined.signs}
+    # The refined centre is back near where the sign really hangs.
+    true = sign_map.sign("0110").center_m
+    assert np.linalg.norm(by_code["0110"].center_m - true) < 0.05
+    for s in refined.signs:
+        if s.code != "0110" and s.frames_seen:
+            assert s.moved_sigmas < 3.0 and 0 < s.sigma_m < 0.01
+
+
+def test_refine_map_cli_writes_a_map_and_refuses_other_sites(tmp_path, capsys):
+    sign_map, camera, flights = _flights()
+    paths = []
+    for k, frames in enumerate(flights):
+        paths.append(tmp_path / f"f{k}.jsonl")
+        write_observations(paths[-1], frames)
+    cam = tmp_path / "cam.yaml"
+    write_camera_info(cam, camera)
+    survey = tmp_path / "survey.yaml"
+    write_map(survey, _rehung(sign_map))
+    out = tmp_path / "refined.yaml"
+    argv = ["refine-map", *map(str, paths), "--map", str(survey), "--camera", str(cam)]
+    assert main([*argv, "--out", str(out)]) == 0
+    assert "0110" in capsys.readouterr().out
+    refined = load_map(out)
+    assert np.linalg.norm(refined.sign("0110").center_m - sign_map.sign("0110").center_m) < 0.05
+    report = json.loads(out.with_suffix(".json").read_text())
+    assert report["moved"] == ["0110"]
+    # A flight of another site: its codes are none of the first flight's.
+    other = [replace(f, signs=tuple(replace(o, code="1111") for o in f.signs)) for f in flights[1]]
+    write_observations(paths[1], other)
+    assert main([*argv, "--out", str(tmp_path / "x.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(paths[1]) in err and "one site" in err
