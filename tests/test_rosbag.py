@@ -92,8 +92,12 @@ def write_bag(
     compression: str = "none",
     camera_info: bool = True,
     raw: bool = False,
+    first: int = 0,
 ) -> Path:
-    """A bag with PNG CompressedImage (or raw bgr8 Image) frames and one CameraInfo."""
+    """A bag with PNG CompressedImage (or raw bgr8 Image) frames and one CameraInfo.
+
+    Frame i of the bag is stamped as frame ``first + i`` of a flight.
+    """
     writer = Writer(path, version=8, storage_plugin=STORAGES[storage])
     if COMPRESSIONS[compression] is not None:
         writer.set_compression(COMPRESSIONS[compression], CompressionFormat.ZSTD)
@@ -107,7 +111,8 @@ def write_bag(
             info_conn = writer.add_connection(
                 INFO_TOPIC, "sensor_msgs/msg/CameraInfo", typestore=STORE
             )
-        for i, (stamp_ns, image) in enumerate(zip(_stamps(len(images)), images, strict=True)):
+        stamps = _stamps(first + len(images))[first:]
+        for i, (stamp_ns, image) in enumerate(zip(stamps, images, strict=True)):
             log_ns = stamp_ns + 7_000_000  # received a little after capture
             if info_conn is not None and i == 0:
                 data = STORE.serialize_cdr(_camera_info(stamp_ns), "sensor_msgs/msg/CameraInfo")
@@ -332,14 +337,11 @@ def test_a_corrupt_message_is_skipped_and_reported(tmp_path):
 def test_split_bag_reads_every_file_in_order(tmp_path):
     images = _images(6, seed=7)
     first = write_bag(tmp_path / "a", images[:3], storage="sqlite3", camera_info=False)
-    second = write_bag(tmp_path / "b", images[3:], storage="sqlite3", camera_info=False)
+    second = write_bag(tmp_path / "b", images[3:], storage="sqlite3", camera_info=False, first=3)
     bag = tmp_path / "bag"
     bag.mkdir()
     shutil.move(next(first.glob("*.db3")), bag / "bag_0.db3")
-    db3 = next(second.glob("*.db3"))
-    with sqlite3.connect(db3) as con:  # the second file continues the clock
-        con.execute(f"UPDATE messages SET timestamp = timestamp + {3 * PERIOD_NS}")
-    shutil.move(db3, bag / "bag_1.db3")
+    shutil.move(next(second.glob("*.db3")), bag / "bag_1.db3")
     meta = _metadata(first)
     info = meta["rosbag2_bagfile_information"]
     info["relative_file_paths"] = ["bag_0.db3", "bag_1.db3"]
@@ -348,6 +350,7 @@ def test_split_bag_reads_every_file_in_order(tmp_path):
     source = open_source(bag)
     assert source.length == 6
     frames = list(source)
+    assert [f.stamp_ns for f in frames] == _stamps(6)
     for got, want in zip(frames, images, strict=True):
         np.testing.assert_array_equal(got.image, want)
 
@@ -555,3 +558,18 @@ def test_damaged_bags_raise_only_input_error(tmp_path):
             escaped.append(f"{target.name}: {type(exc).__name__}: {exc}")
         shutil.rmtree(bag)
     assert not escaped, escaped[:3]
+
+
+def test_images_stamped_backwards_are_skipped_not_restamped(tmp_path):
+    images = _images(3, seed=8)
+    first = write_bag(tmp_path / "a", images, storage="sqlite3", camera_info=False)
+    (db3,) = first.glob("*.db3")
+    with sqlite3.connect(db3) as con:  # message 2 republishes message 1's stamp
+        (data,) = con.execute("SELECT data FROM messages WHERE id = 2").fetchone()
+        con.execute("UPDATE messages SET data = ? WHERE id = 3", (data,))
+    source = open_source(first)
+    assert [f.stamp_ns for f in source] == _stamps(2)
+    assert source.problems == [
+        f"{first}: {IMAGE_TOPIC}: 1 image(s) stamped at or before the previous image skipped "
+        "(first: message 2); frame times must increase"
+    ]

@@ -423,17 +423,30 @@ class LogSource(FrameSource):
         return image, stamp_ns, ""
 
     def _read(self) -> Iterator[Frame]:
+        """Frames in log order; one whose stamp is not after the previous frame's is skipped.
+
+        A repeated or backward header stamp (a driver republishing, a clock
+        jump) is never rewritten: such frames are counted and reported once.
+        """
         index = 0
         last_ns = -1
+        backward: list[int] = []
         for number, msg in enumerate(self.log.messages([self.topic])):
             image, stamp_ns, reason = self._frame_of(msg)
             if image is None:
                 self._problem(f"{self.topic}: message {number}: {reason}; skipped")
                 continue
-            stamp_ns = max(stamp_ns, last_ns + 1)
+            if stamp_ns <= last_ns:
+                backward.append(number)
+                continue
             last_ns = stamp_ns
             yield Frame(index, stamp_ns, image)
             index += 1
+        if backward:
+            self._problem(
+                f"{self.topic}: {len(backward)} image(s) stamped at or before the previous "
+                f"image skipped (first: message {backward[0]}); frame times must increase"
+            )
         if self.log.problem:
             self._problem(f"{self.log.problem} (read {index} images of {self.topic})")
         if index == 0:
