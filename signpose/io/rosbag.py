@@ -40,6 +40,8 @@ ZSTD_SUFFIX = ".zstd"
 COMPRESSION_MODES = ("none", "file", "message")
 CDR_ENCODING = "cdr"
 _COPY_CHUNK_BYTES = 1 << 20
+# metadata.yaml lists topics and files: a few kB, a few MB for a bag of thousands of files.
+MAX_METADATA_BYTES = 16 << 20
 
 
 @dataclass(frozen=True)
@@ -120,6 +122,11 @@ def read_bag_info(folder: str | os.PathLike) -> BagInfo:
     path = folder / METADATA_NAME
     if not path.is_file():
         return _info_from_files(folder)
+    size = path.stat().st_size
+    if size > MAX_METADATA_BYTES:
+        raise _metadata_fail(
+            path, f"{size} bytes; a bag's metadata is at most {MAX_METADATA_BYTES}"
+        )
     try:
         doc = yaml.safe_load(path.read_bytes().decode("utf-8"))
     except yaml.MarkedYAMLError as exc:
