@@ -53,7 +53,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -563,11 +563,13 @@ def _subpixel_centroids(
     halfway to its neighbours in the sign plane.
 
     Returns:
-        (P, 2) centroids [px] and (P,) boolean "measured".
+        (P, 2) centroids [px], (P,) boolean "measured" and (P,) white area
+        (sum of white fractions) [px^2], NaN where not measured.
     """
     h, w = gray.shape
     n = len(parts)
     out = np.zeros((n, 2))
+    white_area = np.full(n, np.nan)
     steps = _project(image_H_sign, _UNIT_STEPS)
     scale = math.sqrt(abs(np.linalg.det(steps[1:] - steps[0]))) / 0.01  # px per diameter
     grow = min(pad_px / max(scale, 1e-9), 0.035)
@@ -583,7 +585,7 @@ def _subpixel_centroids(
     idx = [i for i in range(n) if valid_l[i]]
     valid = np.array(valid_l, dtype=bool)
     if not idx:
-        return out, valid
+        return out, valid, white_area
     # One window over all parts, one label per part (the grown rectangles do
     # not overlap in the sign plane; a pixel on two rasterised borders goes
     # to the later part). The sums per part run over the part's own box, in
@@ -604,12 +606,13 @@ def _subpixel_centroids(
         a0, b0, a1, b1 = a0 - x0, b0 - y0, a1 - x0, b1 - y0
         win = wt[b0:b1, a0:a1]
         m = cv2.moments(win * (labels[b0:b1, a0:a1] == i + 1))
+        white_area[i] = m["m00"]
         if m["m00"] > 0:
             out[i, 0] = x0 + a0 + m["m10"] / m["m00"]
             out[i, 1] = y0 + b0 + m["m01"] / m["m00"]
         else:
             valid[i] = False
-    return out, valid
+    return out, valid, white_area
 
 
 def _fit_parts(
@@ -732,29 +735,39 @@ def _inside(points: np.ndarray, w: int, h: int, margin: float) -> bool:
 class SigmaModel:
     """Keypoint noise from what the decoder sees, calibrated by scripts/calibrate_sigma.py.
 
-    ``sigma^2 = floor^2 + (size / minor)^2 + (spread * contrast_term / minor)^2
-    + (residual * rms)^2``, times ``kind`` for the direction and slot
-    keypoints and ``occluded`` when an occluder crosses the face (its parts
-    are dropped, but a band's edge still pulls the neighbours' centroids).
+    ``sigma^2 = floor^2 + (size / minor)^2 + (spread_px2 * spread / minor)^2
+    + (residual * rms)^2 + (disturbance * disturbance_in * minor)^2``, times the
+    ``direction`` or ``slot`` factor for those keypoints and ``occluded`` when
+    an occluder crosses the face (its parts are dropped, but a band's edge
+    still pulls the neighbours' centroids).
 
     Attributes:
         floor_px: error left on large clean signs [px].
         size_px2: size term [px^2]: sampling and blur, over the disc's minor axis [px].
         spread_px2: noise term [px^2], per unit of the black samples' spread.
         residual: factor on the homography fit's RMS residual (more than four parts).
+        disturbance: error, as a fraction of the disc's minor axis, per unit
+            of ``SigmaInputs.disturbance`` (a line or dirt across a part kept
+            pulls its centroid by a share of the part's size).
         direction, slot: factors for those keypoint kinds (the centre's is 1).
+        direction_size_px2: the directional keypoint's own size term [px^2].
         occluded: factor when the face shows an occluder.
     """
 
-    floor_px: float = 0.02
-    size_px2: float = 1.0
-    spread_px2: float = 4.0
-    residual: float = 1.0
-    direction: float = 1.5
-    slot: float = 1.0
-    occluded: float = 2.0
+    floor_px: float = 0.0207
+    size_px2: float = 0.0
+    spread_px2: float = 0.0
+    residual: float = 0.234
+    disturbance: float = 0.0131
+    direction: float = 2.02
+    direction_size_px2: float = 0.0
+    slot: float = 0.909
+    occluded: float = 40.0
 
 
+# Calibrated by scripts/calibrate_sigma.py --n 150 (seed 11) against the
+# simulator's truth (signpose.sim.crops); its fit drove the size and spread
+# terms to zero (the disturbance and residual terms carry what they would).
 SIGMA_MODEL = SigmaModel()
 
 
@@ -768,12 +781,15 @@ class SigmaInputs:
             fraction of white - black.
         residual_px: RMS residual of the homography fit [px] (NaN: exact fit).
         crossed: an occluder crosses the face (its parts are dropped).
+        disturbance: the larger of 1 - the least white fraction inside the
+            parts kept and their largest fill deficit (``_Refined``).
     """
 
     minor_px: float
     spread: float
     residual_px: float
     crossed: bool
+    disturbance: float = 0.0
 
 
 def keypoint_sigmas(
@@ -792,12 +808,17 @@ def keypoint_sigmas(
         + (m.size_px2 / minor) ** 2
         + (m.spread_px2 * inputs.spread / minor) ** 2
         + (m.residual * rms) ** 2
+        + (m.disturbance * inputs.disturbance * minor) ** 2
     )
     base = math.sqrt(base2) * (m.occluded if inputs.crossed else 1.0)
     out = {}
     for name in names:
-        k = 1.0 if name == "center" else (m.direction if name == "direction" else m.slot)
-        out[name] = (base * k, base * k)
+        if name == "direction":
+            # The thin rectangle is a few pixels wide: its size term is its own.
+            s = math.hypot(base * m.direction, m.direction_size_px2 / minor)
+        else:
+            s = base * (1.0 if name == "center" else m.slot)
+        out[name] = (s, s)
     return out
 
 
@@ -841,6 +862,7 @@ def decode_roi(
             # Read gray levels with the thin dark line closed too.
             k = _open_kernel(g)
             res = _decode_at(cv2.morphologyEx(g, cv2.MORPH_CLOSE, k), dark, allowed, settings)
+            res = _crossed_by_a_line(res)
         else:
             res = _decode_at(g, dark, allowed, settings)
         if res.code is not None or res.reason in _FINAL_REASONS:
@@ -850,6 +872,29 @@ def decode_roi(
             # fallbacks' noisier masks would only blur the reason.
             best = res
     return best if best is not None else _fail(DecodeReason.NO_SIGN)
+
+
+def _crossed_by_a_line(res: DecodeResult) -> DecodeResult:
+    """A reading through the "open" fallback: a thin line crosses the face.
+
+    Its gray levels came from the closed crop, where the line no longer
+    shows, so the occlusion evidence could not see it; the sigmas can.
+    """
+    if res.sigma_inputs is None:
+        return res
+    inputs = replace(res.sigma_inputs, crossed=True)
+    sigmas = keypoint_sigmas(inputs, res.keypoint_sigma_px)
+    return replace(
+        res,
+        sigma_inputs=inputs,
+        keypoint_sigma_px=sigmas,
+        sigma_px=_mean_sigma(sigmas),
+    )
+
+
+def _mean_sigma(sigmas: dict[str, tuple[float, float]]) -> float:
+    """One sigma for all keypoints [px]: the geometric mean of the axes' sigmas."""
+    return float(np.sqrt(np.mean([su * sv for su, sv in sigmas.values()])))
 
 
 def _open_kernel(g: np.ndarray) -> np.ndarray:
@@ -1209,12 +1254,28 @@ class _Refined:
         used_parts: part indices whose gray-level centroid was measured.
         centroids_px: (len(used_parts), 2) those centroids [px].
         residual_px: RMS fit residual [px], NaN for an exact fit.
+        fill_deficit: the largest share of a part's area missing from its
+            white area (a line or dirt across it; blur keeps the sum).
     """
 
     image_H_sign: np.ndarray
     used_parts: list[int]
     centroids_px: np.ndarray
     residual_px: float
+    fill_deficit: float = 0.0
+
+
+def _fill_deficit(
+    image_H_sign: np.ndarray, parts: list[int], white_area: np.ndarray, valid: np.ndarray
+) -> float:
+    """Largest 1 - white area / projected area over the measured parts (0 when clean)."""
+    if not valid.any():
+        return 0.0
+    quads = _project(image_H_sign, _PART_QUADS[parts].reshape(-1, 2)).reshape(-1, 4, 2)
+    x, y = quads[..., 0], quads[..., 1]
+    area = 0.5 * np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1))
+    ratio = white_area[valid] / np.maximum(area[valid], 1e-9)
+    return float(np.clip(1.0 - ratio, 0.0, 1.0).max())
 
 
 def _refine(
@@ -1230,11 +1291,14 @@ def _refine(
     ``pattern``: the accepted bits, "x" where erased.
     """
     g, settings = region.gray, region.settings
-    cents, valid = _subpixel_centroids(g, image_H_sign, parts, reading.black, reading.white, 1.5)
+    cents, valid, white_area = _subpixel_centroids(
+        g, image_H_sign, parts, reading.black, reading.white, 1.5
+    )
+    deficit = _fill_deficit(image_H_sign, parts, white_area, valid)
     use = [p for p, v in zip(parts, valid, strict=True) if v]
     cents_used = cents[valid]
     if len(use) < 2:
-        return _Refined(image_H_sign, use, cents_used, float("nan"))
+        return _Refined(image_H_sign, use, cents_used, float("nan"), deficit)
     fallback = _refit_fallback(image_H_sign, cents, valid) if len(use) < 3 else None
     passes = 1 if settings.perspective_correction else 0
     h_ref, rms = _fit_parts(use, cents_used, fallback, passes=passes)
@@ -1250,7 +1314,7 @@ def _refine(
     again = _read_slots(g, h_ref, settings).code
     if moved > 0.1 * major_px or again is None or not _consistent(again, pattern):
         return None
-    return _Refined(h_ref, use, cents_used, rms)
+    return _Refined(h_ref, use, cents_used, rms, deficit)
 
 
 def _keypoints_from_rim(
@@ -1286,10 +1350,12 @@ class _Occlusion:
     Attributes:
         pattern: the reading's bits with "x" for every erased slot.
         covered_parts: part indices (0..5) a band or a dark patch covers.
+        disturbance: 1 - the least white fraction inside the white parts kept.
     """
 
     pattern: str
     covered_parts: frozenset[int]
+    disturbance: float = 0.0
 
 
 def _occlusion(
@@ -1315,17 +1381,23 @@ def _occlusion(
     # A white part that shows white throughout is only dropped under a band
     # seen in front (a black bar that may be behind leaves it alone).
     front_hits = occlusion.crossed([b for b in bands if b.in_front], _PART_CENTRES, _PART_HALF)
-    dark_inside = occlusion.interior_not_white(
+    inside_white = occlusion.interior_min_white(
         g, image_H_sign, _PART_QUADS[white], reading.black, reading.white, np.equal(white, 1)
     )
-    covered = {p for p, d in zip(white, dark_inside.tolist(), strict=True) if d}
+    covered = {
+        p for p, m in zip(white, inside_white.tolist(), strict=True) if m < occlusion.COVERED_INSIDE
+    }
+    # How far the least clean of the parts kept falls short of white (dirt,
+    # a thin line across it): their centroids carry that.
+    kept = [m for p, m in zip(white, inside_white.tolist(), strict=True) if p not in covered]
+    disturbance = float(np.clip(1.0 - min(kept), 0.0, 1.0)) if kept else 0.0
     covered |= {p for p in white if front_hits[p]}
     for k in range(1, N_BITS + 1):
         if pattern[k - 1] == "0" and band_hits[1 + k]:
             pattern[k - 1] = "x"
         if pattern[k - 1] == "x":
             covered.add(1 + k)
-    return _Occlusion("".join(pattern), frozenset(covered))
+    return _Occlusion("".join(pattern), frozenset(covered), disturbance)
 
 
 def _accept_code(
@@ -1393,6 +1465,7 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
         spread=reading.spread,
         residual_px=rms,
         crossed=bool(occ.covered_parts),
+        disturbance=max(occ.disturbance, refined.fill_deficit),
     )
     sigmas = keypoint_sigmas(inputs, names)
     return DecodeResult(
@@ -1401,7 +1474,7 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
         keypoints_px={n: (float(p[0]), float(p[1])) for n, p in zip(names, uv, strict=True)},
         ellipse=ellipse,
         quality=float(quality),
-        sigma_px=float(np.sqrt(np.mean([s[0] * s[1] for s in sigmas.values()]))),
+        sigma_px=_mean_sigma(sigmas),
         image_H_sign=image_H_sign,
         residual_px=rms,
         erased_slots=erased,

@@ -69,7 +69,7 @@ _N_CHORD = 17
 _CHORD_INNER = 0.47
 # White-part interior grid (fractions of the part, inset from its edges), and
 # the white fraction below which a sample there is covered.
-_COVERED_INSIDE = 0.35
+COVERED_INSIDE = 0.35
 _INSET = np.linspace(0.2, 0.8, 4)
 # Polar grid over the face for unexplained white.
 _GRID_RADII = np.linspace(0.07, 0.45, 10)
@@ -271,7 +271,7 @@ def crossed(bands: list[Band], centres: np.ndarray, half_sizes: np.ndarray) -> n
     return out
 
 
-def interior_not_white(
+def interior_min_white(
     gray: np.ndarray,
     image_H_sign: np.ndarray,
     quads: np.ndarray,
@@ -279,7 +279,8 @@ def interior_not_white(
     white: float,
     thin: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(P,) whether each white part is dark somewhere inside.
+    """(P,) the least white fraction inside each white part (1: clean; below
+    ``COVERED_INSIDE``: covered).
 
     Args:
         quads: (P, 4, 2) the parts' corners [diameters], q0 -> q1 along the
@@ -302,7 +303,7 @@ def interior_not_white(
     )
     out, start = [], 0
     for n in counts:
-        out.append(bool((frac[start : start + n] < _COVERED_INSIDE).any()))
+        out.append(float(frac[start : start + n].min()))
         start += n
     return np.array(out)
 
