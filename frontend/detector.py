@@ -105,6 +105,14 @@ class DetectorSettings:
         fast_dark_margin: candidate pixels are at most this much brighter than
             the frame's 0.5th percentile [grey levels] (a sign's black is
             among the darkest things in view).
+        fast_local_tiles: (columns, rows) of tiles in which the dark threshold
+            is also taken locally (tile's 0.5th percentile + ``fast_dark_margin``,
+            interpolated between tile centres), so that a sign in front of a
+            bright part of a photograph is a candidate even when a darker
+            region elsewhere sets the frame's percentile; (0, 0) = global only.
+        fast_local_raise: the local threshold is at most this much above the
+            frame's [grey levels] (a sign's black stays dark; busy mid-grey
+            texture does not become candidates).
         fast_min_range: ...in blobs with pixels this much brighter in or
             next to them (a sign spans black to white) [grey levels].
         fast_roi_grow: a candidate blob's box grows by this fraction of its
@@ -132,6 +140,8 @@ class DetectorSettings:
     merge_overlap: float = 0.4
     group_eps: float = 0.2
     fast_dark_margin: float = 25.0
+    fast_local_tiles: tuple[int, int] = (8, 6)
+    fast_local_raise: float = 20.0
     fast_min_range: int = 50
     fast_roi_grow: float = 0.6
     fast_scale: tuple[float, float] = (0.6, 1.9)
@@ -395,8 +405,8 @@ class SignDetector:
         """Fast mode's candidates: where a sign's black disc can be, and its size.
 
         On a half-size frame, pixels whose 3 x 3 minimum is among the darkest
-        of the frame (below the 0.5th percentile + ``fast_dark_margin``) are
-        opened (conductors and thin bars vanish) and grouped into blobs;
+        of the frame or of their part of it (``dark_threshold``) are opened
+        (conductors and thin bars vanish) and grouped into blobs;
         compact blobs with bright pixels in or next to them (grey range >=
         ``fast_min_range``) are candidate discs.
 
@@ -410,8 +420,8 @@ class SignDetector:
         half = cv2.resize(gray, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
         low = cv2.erode(half, np.ones((3, 3), np.uint8))
         high = cv2.dilate(half, np.ones((7, 7), np.uint8))
-        dark_thr = float(np.percentile(low[::4, ::4], 0.5)) + s.fast_dark_margin
-        dark = (low <= dark_thr).astype(np.uint8)
+        thr = self.dark_threshold(low)
+        dark = (low <= thr).astype(np.uint8)
         rois = []
         # Opening removes conductors and thin bars, also where they touch a
         # sign; a wider opening frees big signs from thicker (near) conductors.
@@ -424,6 +434,7 @@ class SignDetector:
                 if area < 0.3 * bw * bh or max(bw, bh) > 3 * min(bw, bh) or max(bw, bh) < 3:
                     continue
                 # Its white parts (or the background) are bright next to the black.
+                dark_thr = float(thr[by + bh // 2, bx + bw // 2])
                 if int(high[by : by + bh, bx : bx + bw].max()) - dark_thr < s.fast_min_range:
                     continue
                 x0, y0, bw, bh = 2 * bx, 2 * by, 2 * bw, 2 * bh
@@ -437,6 +448,32 @@ class SignDetector:
                 if roi not in rois:
                     rois.append(roi)
         return rois
+
+    def dark_threshold(self, low: np.ndarray) -> np.ndarray:
+        """(H, W) float32 grey level at or below which a pixel of ``low`` may be a sign's black.
+
+        The frame's 0.5th percentile + ``fast_dark_margin``, raised (by at most
+        ``fast_local_raise``) where a tile's own 0.5th percentile is brighter:
+        a photograph's dark region then no longer hides the signs in front of
+        its bright parts.
+        """
+        s = self.settings
+        frame_thr = float(np.percentile(low[::4, ::4], 0.5)) + s.fast_dark_margin
+        nx, ny = s.fast_local_tiles
+        if nx <= 0 or ny <= 0:
+            return np.full(low.shape, frame_thr, np.float32)
+        sub = low[::2, ::2]
+        ys = np.linspace(0, sub.shape[0], ny + 1).astype(int)
+        xs = np.linspace(0, sub.shape[1], nx + 1).astype(int)
+        tiles = np.array(
+            [
+                [np.percentile(sub[y0:y1, x0:x1], 0.5) for x0, x1 in zip(xs, xs[1:], strict=False)]
+                for y0, y1 in zip(ys, ys[1:], strict=False)
+            ],
+            np.float32,
+        )
+        local = np.clip(tiles + s.fast_dark_margin, frame_thr, frame_thr + s.fast_local_raise)
+        return cv2.resize(local, (low.shape[1], low.shape[0]), interpolation=cv2.INTER_LINEAR)
 
     def _fast_raw(self, gray: np.ndarray) -> np.ndarray:
         s = self.settings

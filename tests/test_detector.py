@@ -19,6 +19,7 @@ from signpose.frontend.detector import (
     to_frame_observations,
 )
 from signpose.frontend.observations import SignObservation
+from signpose.frontend.sign import render_sign_png
 from signpose.maps.loader import bundled_map_path, load_map
 
 
@@ -206,3 +207,22 @@ def test_cli_prints_one_json_line_per_image(frame, tmp_path, capsys):
     sign = lines[0]["signs"][0]
     assert set(sign) == {"code", "center_px", "bbox_px", "keypoints_px", "score"}
     assert main(["detect", str(missing)]) == 2
+
+
+def test_a_sign_in_front_of_a_bright_part_is_a_candidate_despite_darker_regions_elsewhere():
+    """Fast mode's dark threshold is also local: a dark mass elsewhere does not hide a sign."""
+    frame = np.full((480, 640), 150, np.uint8)
+    frame[:, :120] = 0  # a black region (a photograph's shadow), the frame's darkest
+    face = render_sign_png("0101", 60).astype(float)
+    frame[300:360, 400:460] = np.round(40 + face * (200 - 40) / 255)  # its black is 40, not 0
+    center = (430, 330)
+
+    def candidate_at_sign(settings: DetectorSettings) -> bool:
+        rois = SignDetector(settings=settings).candidate_rois(frame)
+        return any(
+            x <= center[0] < x + w and y <= center[1] < y + h and size < 200
+            for x, y, w, h, size in rois
+        )
+
+    assert candidate_at_sign(DetectorSettings())
+    assert not candidate_at_sign(DetectorSettings(fast_local_tiles=(0, 0)))
