@@ -163,6 +163,10 @@ def render(parser: argparse.ArgumentParser | None = None) -> str:
         "| ---: | --- |",
         *(f"| {code} | {meaning} |" for code, meaning in EXIT_CODES),
         "",
+        "A reader that closes the pipe early (`| head`) ends a command quietly with 0. For "
+        "`batch` the worst flight decides: 1 if a flight failed on an internal error, else 2 "
+        "if one failed on bad input or was read only in part, else 0.",
+        "",
         "## Commands",
         "",
         *_contents(parser),

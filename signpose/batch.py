@@ -109,6 +109,8 @@ class FlightOutcome:
         time_s: wall time of the flight [s].
         message: why it failed / where the input stopped, else "".
         skipped: True when a previous run had finished it.
+        internal: it failed on a bug (an internal error, a worker that died),
+            not on bad input.
     """
 
     flight: str
@@ -119,6 +121,7 @@ class FlightOutcome:
     time_s: float = 0.0
     message: str = ""
     skipped: bool = False
+    internal: bool = False
 
 
 def flight_names(
@@ -219,6 +222,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             FlightStatus.FAILED,
             time_s=time.perf_counter() - t0,
             message=f"internal error: {type(exc).__name__}: {exc}",
+            internal=True,
         )
     with atomic_write(Path(job.out_dir) / DONE_MARKER) as f:
         json.dump(_clean(asdict(outcome)) | {FINGERPRINT_KEY: job.fingerprint}, f, indent=2)
@@ -486,5 +490,8 @@ def _outcome_of(fut: _Finished, job: FlightJob) -> FlightOutcome:
         return fut.result()
     except Exception as exc:  # noqa: BLE001 - a worker died: record it, go on
         return FlightOutcome(
-            job.flight, FlightStatus.FAILED, message=f"worker failed: {type(exc).__name__}: {exc}"
+            job.flight,
+            FlightStatus.FAILED,
+            message=f"worker failed: {type(exc).__name__}: {exc}",
+            internal=True,
         )

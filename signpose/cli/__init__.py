@@ -8,8 +8,10 @@ namespace and returning an exit code. Namespaces never leave this package.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -35,21 +37,57 @@ COMMANDS = (
 )
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+# Options every command takes before or after its name: ``signpose -q run`` = ``signpose run -q``.
+GLOBAL_OPTIONS = (
+    (("-q", "--quiet"), "no progress bars"),
+    (("-v", "--verbose"), "log diagnostics"),
+    (("--debug",), "show tracebacks of internal errors"),
+)
+
+
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """``--help`` names each option's default, unless it is None/False or the help says it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (
+            "default" in text
+            or default in (None, False, argparse.SUPPRESS)
+            or action.nargs == 0
+            or isinstance(default, list | tuple)
+            and not default
+        ):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def add_global_options(parser: argparse.ArgumentParser, top: bool) -> None:
+    """GLOBAL_OPTIONS on ``parser``; below the top they only override when given."""
+    for flags, help_text in GLOBAL_OPTIONS:
+        default = False if top else argparse.SUPPRESS
+        try:
+            parser.add_argument(*flags, action="store_true", default=default, help=help_text)
+        except argparse.ArgumentError:  # the command has it already (add_quiet)
+            continue
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="signpose",
         description="UAV trajectories from coded signs on power pylons.",
+        formatter_class=DefaultsHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"signpose {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log diagnostics")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    add_global_options(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     # By name, not imported above: each subcommand imports ``add_quiet`` and
     # ``codes_arg`` from this module.
     for name in COMMANDS:
         importlib.import_module(f"signpose.cli.{name}").register(sub)
+    for command in dict.fromkeys(sub.choices.values()):
+        command.formatter_class = DefaultsHelpFormatter
+        add_global_options(command, top=False)
     return parser
 
 
@@ -68,6 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"signpose {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # stdout's reader left (| head): what it read is what it wanted
+        _stdout_to_devnull()
+        return EXIT_OK
     except Exception as exc:  # noqa: BLE001 - the CLI's last line of defence
         if args.debug:
             raise
@@ -80,8 +121,18 @@ def main(argv: list[str] | None = None) -> int:
     return EXIT_OK if code is None else int(code)
 
 
+def _stdout_to_devnull() -> None:
+    """Point stdout at /dev/null, so that Python's flush at exit does not fail on the pipe."""
+    # No file descriptor behind stdout (a test's capture): nothing to do.
+    with contextlib.suppress(OSError, ValueError):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
 def add_quiet(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    # SUPPRESS: not given here keeps what was given before the command (``signpose -q run``).
+    parser.add_argument(
+        "-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress bars"
+    )
 
 
 def add_cascade(parser: argparse.ArgumentParser) -> None:

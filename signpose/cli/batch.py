@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from signpose.batch import SUMMARY_NAME, FlightStatus, run_batch
-from signpose.cli import add_cascade, add_quiet
+from signpose.batch import SUMMARY_NAME, FlightOutcome, FlightStatus, run_batch
+from signpose.cli import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, add_cascade, add_quiet
 from signpose.core.errors import InputError
 
 
@@ -77,5 +77,18 @@ def run(args: argparse.Namespace) -> int:
     if failed:
         names = ", ".join(f"{o.flight} ({o.message})" for o in failed)
         print(f"signpose batch: error: failed flights: {names}", file=sys.stderr)
-        return 2
-    return 0
+    partial = [o for o in outcomes if o.status is FlightStatus.PARTIAL]
+    if partial:
+        names = ", ".join(f"{o.flight} ({o.message})" for o in partial)
+        print(f"signpose batch: error: flights read only in part: {names}", file=sys.stderr)
+    return exit_code(outcomes)
+
+
+def exit_code(outcomes: list[FlightOutcome]) -> int:
+    """The worst flight decides: 1 if one failed on a bug, else 2 if one failed on bad input or
+    was read only in part (as ``signpose run`` exits for it), else 0."""
+    if any(o.status is FlightStatus.FAILED and o.internal for o in outcomes):
+        return EXIT_INTERNAL
+    if any(o.status is not FlightStatus.OK for o in outcomes):
+        return EXIT_INPUT
+    return EXIT_OK
