@@ -54,6 +54,7 @@ from signpose.frontend.sign import ALL_CODES
 from signpose.io import mcap as mcap_io
 from signpose.io.observations import append_observation
 from signpose.io.results import compare_dir, metrics_table, read_report, write_json, write_outputs
+from signpose.io.rosbag_write import ResultBag, write_result_bag
 from signpose.io.sources import Frame, FrameSource, PrefetchedFrame, open_source, prefetch
 from signpose.io.tum import read_tum
 from signpose.maps.loader import SignMap, bundled_map_path, load_map
@@ -66,6 +67,7 @@ log = logging.getLogger(__name__)
 OBSERVATIONS_NAME = "observations.jsonl"
 REPORT_NAME = "report.json"
 RESULT_MCAP_NAME = "result.mcap"
+RESULT_BAG_NAME = "result_bag"
 # The stages of the paper's Table 5, plus the ones signpose adds.
 STAGES = ("decode_video", "detect", "decode", "track", "estimate", "outputs")
 # Signs nearer the camera than this [m] are not predicted (behind it or at the lens).
@@ -161,6 +163,9 @@ class RunSettings:
         with_images: put the images (JPEG) into ``result.mcap``.
         plots: write the PNG plots.
         mcap: write ``result.mcap``.
+        ros2_bag: write ``result_bag/``, a rosbag2 folder for ROS 2 tools.
+        start_ns: first frame's time of a video or ``fps`` folder [ns since 1970];
+            None: the video's own creation_time, else 0.
     """
 
     observe: ObserveSettings = field(default_factory=ObserveSettings)
@@ -168,6 +173,8 @@ class RunSettings:
     with_images: bool = False
     plots: bool = True
     mcap: bool = True
+    ros2_bag: bool = False
+    start_ns: int | None = None
 
 
 @dataclass(frozen=True)
@@ -874,9 +881,10 @@ class _Flight:
     input_path: str | os.PathLike
     topic: str | None
     fps: float | None
+    start_ns: int | None = None
 
     def open(self) -> FrameSource:
-        return open_source(self.input_path, topic=self.topic, fps=self.fps)
+        return open_source(self.input_path, topic=self.topic, fps=self.fps, start_ns=self.start_ns)
 
 
 def run(
@@ -914,7 +922,7 @@ def run(
     s = settings or RunSettings()
     t_start = time.perf_counter()
     out = ensure_dir(out_dir)
-    flight = _Flight(input_path, topic, fps)
+    flight = _Flight(input_path, topic, fps, s.start_ns)
     gt = read_tum(gt_path) if gt_path is not None else None
     source = flight.open()
     cam = _camera_for(source, camera)
@@ -933,7 +941,7 @@ def run(
     trajs, sigmas = _trajectories(estimate)
     files = [out / OBSERVATIONS_NAME]
     files += _write_run_files(
-        out, s, flight, sign_map, cam, obs, estimate, trajs, sigmas, gt, progress
+        out, s, flight, sign_map, cam, obs, estimate, trajs, sigmas, gt, progress, source.frame_id
     )
     comparison, table = _compare(out, Path(gt_path)) if gt_path is not None else (None, "")
     timing["outputs"] = time.perf_counter() - t0
@@ -973,8 +981,10 @@ def _write_run_files(
     sigmas: dict[str, np.ndarray],
     gt: Trajectory | None,
     progress: bool,
+    frame_id: str | None = None,
 ) -> list[Path]:
-    """The estimator's files, the plots and ``result.mcap``, as settings ask."""
+    """The estimator's files, the plots, ``result.mcap`` and the ROS 2 bag, as settings ask."""
+    camera_frame = frame_id or mcap_io.CAMERA_FRAME  # the input's own name, if it has one
     files = [Path(p) for p in write_outputs(out, estimate)]
     if s.plots:
         stamps = np.array([f.stamp_ns for f in obs.frames], float) * 1e-9
@@ -993,8 +1003,12 @@ def _write_run_files(
             camera,
             images,
             progress=progress,
+            camera_frame=camera_frame,
         )
         files.append(out / RESULT_MCAP_NAME)
+    if s.ros2_bag:
+        bag = ResultBag(sign_map, tuple(obs.frames), trajs, camera, camera_frame)
+        files.append(write_result_bag(out / RESULT_BAG_NAME, bag))
     return files
 
 

@@ -7,12 +7,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import simulate_tiny, truth_detector
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from signpose.estimator.camera import pinhole_camera
+from signpose.maps.loader import bundled_map_path, load_map
 
+from signpose import pipeline
 from signpose.core.errors import InputError
 from signpose.io.clock import QUICKTIME_EPOCH_OFFSET_S, mp4_creation_time_ns, parse_start_time
+from signpose.io.observations import read_observations
 from signpose.io.sources import FolderSource, VideoSource, check_source_camera, open_source
 
 
@@ -231,3 +235,20 @@ def test_start_time_for_an_fps_folder_and_not_for_inputs_with_times(tmp_path):
     with pytest.raises(InputError, match="frames.csv gives this folder's times"):
         open_source(tmp_path, start_ns=10**18)
     assert mp4_creation_time_ns(tmp_path / "0.png") is None
+
+
+def test_run_puts_a_video_on_the_given_clock(tmp_path):
+    sim = simulate_tiny(tmp_path / "flight", frames=6)
+    start_ns = parse_start_time("2026-05-01T10:30:00Z")
+    settings = pipeline.RunSettings(plots=False, mcap=False, start_ns=start_ns)
+    pipeline.run(
+        sim.frames_path,
+        load_map(bundled_map_path()),
+        tmp_path / "run",
+        camera=sim.camera,
+        settings=settings,
+        progress=False,
+        detector=truth_detector(sim),
+    )
+    stamps = [f.stamp_ns for f in read_observations(tmp_path / "run" / "observations.jsonl")]
+    assert stamps[0] == start_ns and len(stamps) == 6

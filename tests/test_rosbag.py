@@ -27,7 +27,10 @@ from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose import pipeline
+from signpose.cli import main as cli_main
 from signpose.core.errors import InputError, OutputError
+from signpose.io import mcap as mcap_io
+from signpose.io.camera_file import write_camera_info
 from signpose.io.frames_csv import FrameStamp, read_frames_csv, write_frames_csv
 from signpose.io.rosbag import read_bag_info
 from signpose.io.rosbag_write import ResultBag, write_result_bag
@@ -573,3 +576,24 @@ def test_images_stamped_backwards_are_skipped_not_restamped(tmp_path):
         f"{first}: {IMAGE_TOPIC}: 1 image(s) stamped at or before the previous image skipped "
         "(first: message 2); frame times must increase"
     ]
+
+
+def test_run_writes_a_ros2_bag_with_the_inputs_frame_id(jpeg_flight, tmp_path, capsys):
+    sim, jpegs, _, _ = jpeg_flight
+    bag = _jpeg_bag(tmp_path / "bag", jpegs, "sqlite3", "none")
+    camera = tmp_path / "camera.yaml"
+    write_camera_info(camera, sim.camera)
+    out = tmp_path / "run"
+    argv = ["run", str(bag), "--map", str(bundled_map_path()), "--camera", str(camera)]
+    assert cli_main([*argv, "--out", str(out), "--ros2-bag", "--no-plots", "-q"]) == 0
+    capsys.readouterr()
+    with Reader(out / "result_bag") as reader:
+        tf = [
+            STORE.deserialize_cdr(raw, conn.msgtype)
+            for conn, _, raw in reader.messages()
+            if conn.topic == "/tf"
+        ]
+    assert len(tf) == 8
+    assert {m.transforms[0].child_frame_id for m in tf} == {FRAME_ID}
+    transforms = mcap_io.read_json_messages(out / "result.mcap", mcap_io.TF_TOPIC)
+    assert {t["transforms"][0]["child_frame_id"] for t in transforms} == {FRAME_ID}

@@ -12,6 +12,7 @@ from signpose.cli import add_cascade, add_quiet, codes_arg
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.smoother import SmootherSettings
 from signpose.io.camera_file import load_camera
+from signpose.io.clock import parse_start_time
 from signpose.maps.loader import load_map
 from signpose.pipeline import STAGES, ObserveSettings, RunResult, RunSettings
 
@@ -40,6 +41,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--workers", type=int, default=0, help="frames detected at once (default: 2 if >1 core)"
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument(
+        "--ros2-bag",
+        action="store_true",
+        help="also write DIR/result_bag, a rosbag2 folder (MCAP) that ROS 2 tools open",
+    )
+    p.add_argument(
+        "--start-time",
+        help="time of the first frame of a video or --fps folder (ISO 8601 with a zone, or "
+        "epoch seconds; default: the video's creation_time, else 0)",
+    )
     p.add_argument(
         "--no-sigmas",
         action="store_true",
@@ -83,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
         ),
         with_images=args.with_images,
         plots=not args.no_plots,
+        ros2_bag=args.ros2_bag,
+        start_ns=parse_start_time(args.start_time) if args.start_time is not None else None,
     )
     # Through the module, so that a test's stand-in for pipeline.run is seen.
     result = pipeline.run(

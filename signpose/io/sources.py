@@ -90,6 +90,8 @@ class FrameSource:
         clock: where the frame times come from: ``log`` (header stamps), ``csv``
             (frames.csv), ``creation_time`` (a video's own), ``start_time`` (given),
             or ``zero`` (counted from 0).
+        frame_id: the images' camera frame id where the input names it (logs,
+            once read), else None.
     """
 
     kind = "input"
@@ -100,6 +102,7 @@ class FrameSource:
         self.camera: CameraModel | None = None
         self.problems: list[str] = []
         self.clock = "log"
+        self.frame_id: str | None = None
         self._notes: list[str] = []  # problems found on opening, repeated in every pass
 
     def __iter__(self) -> Iterator[Frame]:
@@ -377,8 +380,8 @@ class LogSource(FrameSource):
     """Images of one topic of a recorded log; the camera from a calibration topic if any.
 
     Frame times are the messages' header stamps; the log time only where a
-    header stamp is zero or absent. Attributes beyond ``FrameSource``: ``topic``,
-    ``schema_name``, and ``frame_id`` (the images' frame id, once read, or None).
+    header stamp is zero or absent. Attributes beyond ``FrameSource``: ``topic``
+    and ``schema_name``.
     """
 
     kind = "log"
@@ -390,7 +393,6 @@ class LogSource(FrameSource):
         self.topic = ch.topic
         self.schema_name = ch.schema_name
         self.length = ch.message_count
-        self.frame_id: str | None = None
         if ch.message_count == 0:
             raise InputError(f"{path}: topic {ch.topic} has no messages")
         self.camera = self._find_camera()  # a damaged log is reported by the frames' pass
