@@ -101,3 +101,24 @@ def test_batch_of_failing_flights_exits_by_their_class(monkeypatch, tmp_path, ca
     assert main(["batch", *inputs, "--map", MAP, "--out", str(tmp_path / "out"), "-q"]) == code
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "failed flights: f1" in err[0]
+
+
+@pytest.mark.parametrize(
+    ("argv", "tty", "progress"),
+    [
+        ([], False, False),  # a log file: no bars
+        ([], True, True),  # a terminal
+        (["--progress"], False, True),
+        (["-q", "--progress"], True, False),  # --quiet wins
+        (["--quiet"], True, False),
+    ],
+)
+def test_progress_bars_only_on_a_terminal(monkeypatch, argv, tty, progress):
+    seen = []
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    sub.choices["sign"].set_defaults(func=lambda args: seen.append(args.progress))
+    monkeypatch.setattr("signpose.cli.build_parser", lambda: parser)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: tty)
+    assert main(["sign", "0101", "--out", "x.svg", *argv]) == EXIT_OK
+    assert seen == [progress]

@@ -42,6 +42,7 @@ GLOBAL_OPTIONS = (
     (("-q", "--quiet"), "no progress bars"),
     (("-v", "--verbose"), "log diagnostics"),
     (("--debug",), "show tracebacks of internal errors"),
+    (("--progress",), "progress bars also when stderr is not a terminal (a log file)"),
 )
 
 
@@ -94,6 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    # Commands read args.progress: bars on a terminal, or when asked for; never with --quiet.
+    args.progress = not args.quiet and (args.progress or sys.stderr.isatty())
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         plots=not args.no_plots,
         jobs=args.jobs,
         scheduler=args.scheduler,
-        progress=not args.quiet,
+        progress=args.progress,
         force=args.force,
         root=args.root,
         cascade_path=args.cascade,

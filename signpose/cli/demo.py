@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         width=args.width,
         height=args.height,
         with_images=args.with_images,
-        progress=not args.quiet,
+        progress=args.progress,
         cascade_path=str(args.cascade or ""),
     )
     print_result(result.run)

@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.fixed_motion_prior:
         settings = replace(settings, tune_motion=False)
-    result = estimate_trajectories(frames, sign_map, camera, settings, progress=not args.quiet)
+    result = estimate_trajectories(frames, sign_map, camera, settings, progress=args.progress)
     written = write_outputs(args.out, result)
     if not args.quiet:
         for name, m in result.methods.items():

@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         cascade_path=str(args.cascade or ""),
     )
     # Through the module, so that a test's stand-in for pipeline.observe is seen.
-    result = pipeline.observe(source, sign_map, camera, settings, not args.quiet, out_path=args.out)
+    result = pipeline.observe(source, sign_map, camera, settings, args.progress, out_path=args.out)
     n = len(result.frames)
     signs = sum(len(f.signs) for f in result.frames)
     print(f"wrote {args.out}: {n} frames, {signs} sign observations")

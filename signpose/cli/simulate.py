@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         settings = settings.hard()
     given = {k: getattr(args, k) for k in CONDITION_OPTIONS if getattr(args, k) is not None}
     settings = replace(settings, **given).validate()
-    result = simulate(sign_map, args.out, settings, progress=not args.quiet)
+    result = simulate(sign_map, args.out, settings, progress=args.progress)
     print(
         f"simulated {result.n_frames} frames ({settings.trajectory}, seed {settings.seed}) "
         f"of {map_path} into {result.out_dir}:"

@@ -93,8 +93,8 @@ def run(args: argparse.Namespace) -> int:
         features_per_stage=args.features, max_stages=args.stages, max_weak_per_stage=args.max_weak
     )
     t0 = time.perf_counter()
-    bar = tqdm(total=args.positives, desc="positives", disable=args.quiet, unit="win")
-    stages = tqdm(desc="boosting", disable=args.quiet, unit="weak")
+    bar = tqdm(total=args.positives, desc="positives", disable=not args.progress, unit="win")
+    stages = tqdm(desc="boosting", disable=not args.progress, unit="weak")
 
     def progress(msg: str) -> None:
         bar.close()  # positives are done once boosting reports
