@@ -50,6 +50,7 @@ from signpose.frontend.observations import DEFAULT_SIGMA_PX, FrameObservations, 
 from signpose.core.errors import InputError
 
 WINDOW_PX = 24
+MAX_REASON_CHARS = 200  # of OpenCV's message, in an error naming a bad cascade file
 
 
 class DetectorMode(enum.StrEnum):
@@ -353,10 +354,18 @@ class SignDetector:
         try:
             self._cascade = cv2.CascadeClassifier(str(path))
         except (cv2.error, SystemError) as exc:  # OpenCV's XML parser on a malformed file
-            why = str(exc.__cause__ or exc).strip().splitlines()[-1].split("error: ", 1)[-1]
-            raise InputError(f"{path}: not a readable OpenCV cascade XML ({why})") from None
+            why = " ".join(str(exc.__cause__ or exc).split("error: ", 1)[-1].split())
+            raise InputError(
+                f"{path}: not a readable OpenCV cascade XML ({why[:MAX_REASON_CHARS]})"
+            ) from None
         if self._cascade.empty():
             raise InputError(f"{path}: not an OpenCV cascade classifier XML")
+        w, h = self._cascade.getOriginalWindowSize()
+        if w != h:  # signs are discs: a cascade of w x h windows was trained on something else
+            raise InputError(
+                f"{path}: the cascade's window is {w}x{h} px, not square; not a sign detector "
+                "(train one with 'signpose train-detector')"
+            )
 
     # -- raw windows -----------------------------------------------------------
 

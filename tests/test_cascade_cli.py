@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
+import cv2
 import pytest
 from conftest import TruthDetector, simulate_tiny
 from signpose.frontend.detector import SignDetector, bundled_cascade_path
@@ -105,3 +107,14 @@ def test_batch_passes_the_cascade_and_a_new_one_redoes_the_flights(flight, casca
     assert jobs[0].cascade_path == str(cascade_copy.resolve()) and jobs[1].cascade_path == ""
     assert jobs[0].fingerprint != jobs[1].fingerprint
     assert not plain[0].skipped
+
+
+def test_an_incompatible_cascade_is_bad_input(tmp_path):
+    body = Path(cv2.data.haarcascades) / "haarcascade_fullbody.xml"  # 14 x 28 windows
+    with pytest.raises(InputError, match="14x28 px, not square"):
+        SignDetector(body)
+    short = tmp_path / "short.xml"  # the bundled cascade with features outside its window
+    text = bundled_cascade_path().read_text(encoding="utf-8")
+    short.write_text(text.replace("<height>24</height>", "<height>12</height>", 1))
+    with pytest.raises(InputError, match="not a readable OpenCV cascade XML .*HAAR feature"):
+        SignDetector(short)
