@@ -279,6 +279,7 @@ def _metadata(bag: Path) -> dict:
             "compression format 'lz4' is not supported",
         ),
         (lambda d: "\udcff", "not readable YAML"),
+        (lambda d: "a: " + "[" * 5000, "nested deeper than 64"),
     ],
 )
 def test_corrupt_metadata_is_one_line_naming_the_file(tmp_path, damage, expect):

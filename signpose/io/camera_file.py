@@ -36,6 +36,7 @@ import yaml
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_path, atomic_write
 from signpose.estimator.camera import EQUIDISTANT, PLUMB_BOB, CameraModel
+from signpose.io.guards import check_nesting
 
 ROS_CAMERA_INFO = "camera_info"
 OPENCV = "opencv"
@@ -308,6 +309,7 @@ def _read_text(p: Path) -> str:
 
 
 def _safe_yaml(text: str, p: Path):
+    check_nesting(text, p)
     try:
         return yaml.safe_load(text)
     except yaml.MarkedYAMLError as exc:
@@ -319,6 +321,7 @@ def _safe_yaml(text: str, p: Path):
 
 def _read_yaml_directive_file(text: str, p: Path) -> CameraFile:
     """A file starting ``%YAML``: a Kalibr camchain with that header, or OpenCV FileStorage."""
+    check_nesting(text, p)
     try:  # plain YAML once the directive is gone (OpenCV's !!opencv-matrix tags are not)
         d = yaml.safe_load(_YAML_DIRECTIVE.sub("", text, count=1))
     except Exception:  # noqa: BLE001 - not plain YAML: OpenCV's reader decides below

@@ -30,6 +30,7 @@ import yaml
 import zstandard
 
 from signpose.core.errors import InputError
+from signpose.io.guards import check_nesting
 from signpose.io.mcap_read import McapLog
 from signpose.io.messages import LogChannel, LogMessage, MessageLog
 from signpose.io.rosbag_db3 import Db3Log
@@ -128,7 +129,9 @@ def read_bag_info(folder: str | os.PathLike) -> BagInfo:
             path, f"{size} bytes; a bag's metadata is at most {MAX_METADATA_BYTES}"
         )
     try:
-        doc = yaml.safe_load(path.read_bytes().decode("utf-8"))
+        text = path.read_bytes().decode("utf-8")
+        check_nesting(text, path)
+        doc = yaml.safe_load(text)
     except yaml.MarkedYAMLError as exc:
         line = exc.problem_mark.line + 1 if exc.problem_mark is not None else "?"
         raise _metadata_fail(path, f"not readable YAML (line {line}: {exc.problem})") from None
