@@ -193,6 +193,7 @@ class RunResult:
         fps: frames per second over the whole run.
         problems: reading problems (truncated input ...).
         files: every file written.
+        refused: refusal reason -> decoded readings refused (listed in report.json).
     """
 
     out_dir: Path
@@ -205,6 +206,7 @@ class RunResult:
     fps: float
     problems: tuple[str, ...]
     files: tuple[Path, ...]
+    refused: dict[str, int] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------- observations stream
@@ -330,10 +332,10 @@ class FrameTracker:
         self.codes = codes
         self.settings = settings
         self.tracking = settings.tracking and sign_map is not None and camera is not None
-        self._last: tuple[int, np.ndarray] | None = (
-            None  # (position, world_T_cam) of the last frame
-        )
-        self._before_last: np.ndarray | None = None  # the pose of the frame before it
+        # (position, world_T_cam) of the last frame finished, when it was posed,
+        # and the pose of the frame before it (for the velocity).
+        self._last: tuple[int, np.ndarray] | None = None
+        self._before_last: np.ndarray | None = None
         # Positions of the last full search finished and of the last refresh
         # planned (frames in flight may be refreshing already).
         self._last_full = self._last_refresh = -settings.track_refresh_frames
@@ -418,6 +420,14 @@ class RefusedObservation:
             "other_code": self.other_code,
             "other_px": None if self.other_px is None else [round(c, 2) for c in self.other_px],
         }
+
+
+def refusal_counts(refused: Iterable[RefusedObservation]) -> dict[str, int]:
+    """Reason token -> number of readings refused for it (every reason, 0 included)."""
+    counts = {reason.value: 0 for reason in RefusalReason}
+    for r in refused:
+        counts[r.reason.value] += 1
+    return counts
 
 
 def _with_signs(obs: FrameObservations, signs: list[SignObservation]) -> FrameObservations:
@@ -947,21 +957,18 @@ def run(
     timing["outputs"] = time.perf_counter() - t0
     timing["total"] = time.perf_counter() - t_start
     n = len(obs.frames)
-    rmse = {} if gt is None else {k: position_rmse(v, gt) for k, v in trajs.items()}
-    for name, metrics in (comparison or {}).items():
-        if isinstance(metrics, dict) and metrics.get("ate_rmse") is not None:
-            rmse[name] = float(metrics["ate_rmse"])
     result = RunResult(
         out_dir=out,
         n_frames=n,
         coverage={name: float(m.coverage) for name, m in estimate.methods.items()},
-        position_rmse_m=rmse,
+        position_rmse_m=_position_errors(trajs, gt, comparison),
         comparison=comparison,
         comparison_table=table,
         timing_s=timing,
         fps=n / timing["total"] if timing["total"] > 0 else float("nan"),
         problems=tuple(obs.problems),
         files=tuple(files),
+        refused=refusal_counts(obs.refused),
     )
     _add_to_report(out / REPORT_NAME, "pipeline", _pipeline_section(result, source, obs, s))
     if out / REPORT_NAME not in files:
@@ -1017,16 +1024,16 @@ def _pipeline_section(
 ) -> dict:
     """The ``pipeline`` section of report.json."""
     n = result.n_frames
-    counts = {reason.value: 0 for reason in RefusalReason}
-    for r in obs.refused:
-        counts[r.reason.value] += 1
     return {
         "input": str(source.path),
         "input_kind": source.kind,
         "frames": n,
         "problems": list(obs.problems),
         "tracking": {"tracked_frames": obs.tracked_frames, "full_frames": obs.full_frames},
-        "refused": {"counts": counts, "observations": [r.to_json() for r in obs.refused]},
+        "refused": {
+            "counts": result.refused,
+            "observations": [r.to_json() for r in obs.refused],
+        },
         "coverage": result.coverage,
         "position_rmse_m": result.position_rmse_m,
         "timing_s": {k: round(v, 4) for k, v in result.timing_s.items()},
@@ -1036,6 +1043,17 @@ def _pipeline_section(
         "frames_per_second": round(result.fps, 3),
         "settings": {"observe": asdict(s.observe), "with_images": s.with_images},
     }
+
+
+def _position_errors(
+    trajs: dict[str, Trajectory], gt: Trajectory | None, comparison: dict | None
+) -> dict[str, float]:
+    """method -> RMS position error [m]: the comparison's ATE where it has one."""
+    rmse = {} if gt is None else {k: position_rmse(v, gt) for k, v in trajs.items()}
+    for name, metrics in (comparison or {}).items():
+        if isinstance(metrics, dict) and metrics.get("ate_rmse") is not None:
+            rmse[name] = float(metrics["ate_rmse"])
+    return rmse
 
 
 def position_rmse(traj: Trajectory, gt: Trajectory) -> float:

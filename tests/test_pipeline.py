@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +16,7 @@ from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose import pipeline
+from signpose.cli.run import print_result
 from signpose.io import mcap as mcap_io
 from signpose.io.observations import read_observations
 from signpose.io.sources import open_source
@@ -293,3 +296,55 @@ def simulate_tiny_size(out: Path, frames: int, width: int, height: int):
 
     settings = SimSettings(frames=frames, width=width, height=height)
     return simulate(load_map(bundled_map_path()), out, settings, progress=False)
+
+
+class _MisreadingDetector:
+    """The truth, plus on frame 3 the last sign read a second time with the first sign's code."""
+
+    def __init__(self, truth):
+        self.truth = truth
+        self.frames = 0
+
+    def _misread(self, result):
+        self.frames += 1
+        if self.frames != 4:
+            return result
+        signs = sorted(result.detections, key=lambda s: s.code)
+        fake = SignObservation(signs[0].code, signs[-1].keypoints_px, signs[-1].bbox_px)
+        return replace(result, detections=(*result.detections, fake))
+
+    def detect(self, image, codes=None, mode="fast"):
+        return self._misread(self.truth.detect(image, codes, mode))
+
+    def detect_tracked(self, image, predictions, codes=None, refresh=False):
+        return self._misread(self.truth.detect_tracked(image, predictions, codes, refresh))
+
+
+@pytest.mark.parametrize(
+    ("tracking", "reason"),
+    [(True, "code_changed"), (False, "duplicate_code")],  # the track sees it first
+)
+def test_run_refuses_a_misread_code_and_says_so(tiny_flight, tmp_path, tracking, reason):
+    sign_map = load_map(bundled_map_path())
+    out = tmp_path / "run"
+    result = pipeline.run(
+        tiny_flight.frames_path,
+        sign_map,
+        out,
+        camera=tiny_flight.camera,
+        settings=pipeline.RunSettings(
+            observe=pipeline.ObserveSettings(tracking=tracking), plots=False, mcap=False
+        ),
+        progress=False,
+        detector=_MisreadingDetector(truth_detector(tiny_flight)),
+    )
+    assert result.refused == {"duplicate_code": 0, "code_changed": 0} | {reason: 1}
+    refused = json.loads((out / "report.json").read_text())["pipeline"]["refused"]
+    assert refused["counts"] == result.refused
+    assert [(r["frame"], r["reason"]) for r in refused["observations"]] == [(3, reason)]
+    frame3 = read_observations(out / "observations.jsonl")[3]
+    codes = [s.code for s in frame3.signs]
+    assert len(codes) == len(set(codes))
+    printed = io.StringIO()
+    print_result(result, printed)
+    assert "refused 1 decoded readings" in printed.getvalue()

@@ -38,7 +38,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--solver", choices=("batch", "isam2"), default="batch", help="smoother solver")
     p.add_argument("--no-tracking", action="store_true", help="search every full frame")
     p.add_argument(
-        "--workers", type=int, default=0, help="frames detected at once (default: 2 if >1 core)"
+        "--workers",
+        type=int,
+        default=0,
+        help="detector threads (default: 2 if >1 core); the output does not depend on it",
     )
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument(
@@ -71,6 +74,13 @@ def print_result(result: RunResult, out: TextIO | None = None) -> None:
     if result.position_rmse_m:
         err = ", ".join(f"{k} {v:.3f} m" for k, v in result.position_rmse_m.items())
         print(f"position RMSE vs ground truth: {err}", file=out)
+    if any(result.refused.values()):
+        why = ", ".join(f"{k} {n}" for k, n in result.refused.items() if n)
+        print(
+            f"refused {sum(result.refused.values())} decoded readings that contradict the frame "
+            f"or the track ({why}); listed in report.json",
+            file=out,
+        )
     t = result.timing_s
     split = ", ".join(f"{k} {1000 * t.get(k, 0.0) / max(result.n_frames, 1):.1f}" for k in STAGES)
     print(f"{result.fps:.1f} frames/s; ms per frame: {split}", file=out)
