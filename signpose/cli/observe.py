@@ -31,7 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--codes", type=codes_arg, help="codes to look for, e.g. 0001,0101")
     p.add_argument("--no-tracking", action="store_true", help="search every full frame")
     p.add_argument(
-        "--workers", type=int, default=0, help="frames detected at once (default: 2 if >1 core)"
+        "--workers",
+        type=int,
+        default=0,
+        help="detector threads (default: 2 if >1 core); the output does not depend on it",
     )
     add_cascade(p)
     add_quiet(p)
