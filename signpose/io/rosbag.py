@@ -225,7 +225,7 @@ class BagLog:
         self.info = info
         self.path = Path(name) if name is not None else info.folder
         self.problem: str | None = None
-        self._tmp = tempfile.TemporaryDirectory(prefix="signpose-bag-")
+        self._tmp: tempfile.TemporaryDirectory | None = None  # for decompressed files
         self._early: dict[int, str] = {}
         self._logs = [self._open(i, p) for i, p in enumerate(info.files)]
         self.channels = self._merged_channels()
@@ -234,6 +234,8 @@ class BagLog:
         decompress = zstd_decompress if self.info.compression == "message" else None
         storage_path = path
         if path.name.endswith(ZSTD_SUFFIX):
+            if self._tmp is None:
+                self._tmp = tempfile.TemporaryDirectory(prefix="signpose-bag-")
             storage_path = Path(self._tmp.name) / path.name.removesuffix(ZSTD_SUFFIX)
             stopped = decompress_file(path, storage_path)
             if stopped is not None:
