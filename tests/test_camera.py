@@ -408,3 +408,33 @@ def test_camera_command_prints_what_it_read_and_converts(tmp_path, capsys):
     _assert_same(cam, load_camera(out))
     assert cli_main(["camera", str(src), "--to", "opencv"]) == 2
     assert "--to and --out go together" in capsys.readouterr().err
+
+
+def test_ros_rational_polynomial_with_8_coefficients(tmp_path):
+    dist = [-0.2, 0.05, 1e-4, -2e-4, 0.01, 0.3, -0.02, 0.004]
+    text = _ROS + "distortion_model: rational_polynomial\ndistortion_coefficients: {rows: 1, "
+    text += f"cols: 8, data: {dist}}}\n"
+    path = tmp_path / "ost.yaml"
+    path.write_text(text)
+    cam = load_camera(path)
+    assert cam.model == PLUMB_BOB  # OpenCV's rational model: undistortPoints takes 8
+    np.testing.assert_array_equal(cam.dist, dist)
+    write_camera_info(tmp_path / "back.yaml", cam)
+    assert yaml.safe_load((tmp_path / "back.yaml").read_text())["distortion_model"] == (
+        "rational_polynomial"
+    )
+    np.testing.assert_array_equal(load_camera(tmp_path / "back.yaml").dist, dist)
+
+
+def test_opencv_file_whose_model_and_fisheye_flag_disagree(tmp_path):
+    path = tmp_path / "cam.yml"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("camera_matrix", np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]))
+    fs.write("distortion_coefficients", np.zeros((4, 1)))
+    fs.write("distortion_model", "plumb_bob")
+    fs.write("fisheye_model", 1)
+    fs.release()
+    with pytest.raises(InputError, match="says plumb_bob but fisheye_model says equidistant"):
+        load_camera(path)

@@ -245,15 +245,21 @@ def _fs_matrix(fs: cv2.FileStorage, names: tuple[str, ...]) -> np.ndarray | None
 
 
 def _fs_model(fs: cv2.FileStorage, path: Path) -> str:
+    """The lens model a FileStorage file states: ``distortion_model``, its fisheye flag, both."""
     model_node = _fs_node(fs, ("distortion_model",))
-    if model_node is not None:
-        return _model(model_node.string(), path)
+    named = _model(model_node.string(), path) if model_node is not None else None
     flag = _fs_node(fs, ("fisheye_model", "fisheye", "Fisheye_Model"))
-    if flag is not None and flag.isInt():
-        return EQUIDISTANT if int(flag.real()) else PLUMB_BOB
+    flagged = None
     if flag is not None:
-        raise _fail(path, f"'{flag.name()}' must be 0 or 1")
-    return PLUMB_BOB
+        if not flag.isInt() or int(flag.real()) not in (0, 1):
+            raise _fail(path, f"'{flag.name()}' must be 0 or 1")
+        flagged = EQUIDISTANT if int(flag.real()) else PLUMB_BOB
+    if named is not None and flagged is not None and named != flagged:
+        raise _fail(
+            path,
+            f"distortion_model says {named} but {flag.name()} says {flagged}; fix one of them",
+        )
+    return named or flagged or PLUMB_BOB
 
 
 def _from_filestorage(fs: cv2.FileStorage, path: Path) -> CameraModel:
