@@ -40,8 +40,18 @@ Then, beyond the paper:
   and wide white or black coded slots that agree with the contours. A crop
   that does not pass returns no code and a reason; one wrong code costs far
   more than one missed frame.
+* occlusion (``frontend.occlusion``): a coded slot is read as 1, 0 or erased
+  (gray levels neither clearly white nor the disc's black, or a dark band in
+  front of the face crossing it). A code is accepted only when exactly one
+  code of ``codes`` fits the slots that are not erased; the result carries
+  ``erased_slots`` and has no keypoints of covered parts. Otherwise the
+  reading is refused (``occluded``). White on the face that the read code
+  does not explain is refused too (``inconsistent``).
 * the paper's first robustness rule: a code that is not in ``codes`` (the
   map's codes) is dropped (``code_not_in_map``).
+* keypoint noise: ``keypoint_sigma_px`` per keypoint and axis from
+  ``SigmaModel``, calibrated against the simulator by
+  scripts/calibrate_sigma.py.
 
 Image coordinates: pixel centres at integers (OpenCV), u right, v down. The
 sign is seen from the front, so "clockwise as the viewer sees the face" is
@@ -507,7 +517,10 @@ def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSet
         return _Reading(None, DecodeReason.LOW_CONTRAST, 0.0, black, white)
     frac = [(v - black) / contrast for v in vals]
     if not _face_is_sign_like(frac):
-        # A bar in front may brighten the black references: leave out what it covers.
+        # A bar in front may brighten the black references: leave out what it
+        # covers (only worth looking when the white parts are where they belong).
+        if min(frac[_S_LOC]) < 0.6 or min(frac[_S_DIR_LEN]) < 0.45:
+            return _Reading(None, DecodeReason.INCONSISTENT, 0.0, black, white)
         hidden = _hidden_samples(gray, image_H_sign, black, white)
         if not hidden or not _face_is_sign_like(frac, hidden):
             return _Reading(None, DecodeReason.INCONSISTENT, 0.0, black, white)
@@ -1273,7 +1286,8 @@ def _fill_deficit(
         return 0.0
     quads = _project(image_H_sign, _PART_QUADS[parts].reshape(-1, 2)).reshape(-1, 4, 2)
     x, y = quads[..., 0], quads[..., 1]
-    area = 0.5 * np.abs((x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y).sum(axis=1))
+    nxt = [1, 2, 3, 0]
+    area = 0.5 * np.abs((x * y[:, nxt] - x[:, nxt] * y).sum(axis=1))
     ratio = white_area[valid] / np.maximum(area[valid], 1e-9)
     return float(np.clip(1.0 - ratio, 0.0, 1.0).max())
 
@@ -1411,7 +1425,7 @@ def _accept_code(
     known = [0, 1] + [1 + k for k in range(1, N_BITS + 1) if occ.pattern[k - 1] != "0"]
     grow = max(_UNEXPLAINED_GROW, _BLUR_PX / max(scale_px, 1.0))
     if occlusion.unexplained_white(
-        region.gray, image_H_sign, _PART_QUADS[known], reading.black, reading.white, grow
+        region.gray, image_H_sign, tuple(known), reading.black, reading.white, grow
     ):
         return None, occ, DecodeReason.INCONSISTENT
     if "x" not in occ.pattern:

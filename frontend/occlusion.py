@@ -28,11 +28,13 @@ the rare print-black bar in front of a print-black background.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from signpose.frontend.sign import sign_shape
 
 # Rings sampled just outside the rim [diameters]; both must be dark.
 _RING_RADII = (0.55, 0.6)
@@ -129,30 +131,25 @@ def _dark_runs(dark: np.ndarray, level: np.ndarray) -> list[tuple[float, float, 
         return []
     if dark.all():
         return [(0.0, math.pi, float(level.mean()))]
-    start = int(np.argmin(dark))  # a bright sample: runs do not wrap past it
-    order = np.roll(np.arange(n), -start)
-    runs, cur = [], []
-    for i in order.tolist() + [start]:
-        if dark[i]:
-            cur.append(i)
-        elif cur:
-            runs.append(cur)
-            cur = []
+    # Rotate so that the ring starts on a bright sample: no run wraps.
+    start = int(np.argmin(dark))
+    d = np.roll(dark, -start).astype(np.int8)
+    edges = np.diff(np.concatenate([[0], d, [0]]))
+    begins, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    cum = np.concatenate([[0.0], np.cumsum(np.roll(level, -start))])
     step = 2 * math.pi / n
     out = []
-    for run in runs:
-        width = len(run) * step
-        # Index positions unwrap across 0 because the run starts after ``start``.
-        pos = [(i - start) % n + start for i in run]
-        centre = (pos[0] + (len(pos) - 1) / 2.0) * step
-        out.append((centre, width / 2.0, float(level[run].mean())))
+    for b, e in zip(begins.tolist(), ends.tolist(), strict=True):
+        centre = (start + b + (e - b - 1) / 2.0) * step
+        out.append((centre, (e - b) * step / 2.0, float((cum[e] - cum[b]) / (e - b))))
     return out
 
 
 def _rim_runs(
-    gray: np.ndarray, image_H_sign: np.ndarray, black: float, white: float, threshold: float
+    gray: np.ndarray, image_H_sign: np.ndarray, black: float, white: float
 ) -> list[tuple[float, float, float]]:
-    """Runs of the rings just outside the rim where both are at most ``threshold`` white.
+    """Runs of the rings just outside the rim where both are at most a threshold
+    white, for every threshold of ``_RUN_THRESHOLDS``, short runs only.
 
     Ring points outside the crop show nothing and count as not dark.
     """
@@ -160,9 +157,14 @@ def _rim_runs(
     h, w = gray.shape
     seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     frac = (_sample(gray, uv) - black) / max(white - black, 1e-6)
-    dark = (frac <= threshold) & seen
-    rings = frac.reshape(len(_RING_RADII), _N_RING)
-    return _dark_runs(dark.reshape(rings.shape).all(axis=0), rings.mean(axis=0))
+    shape = (len(_RING_RADII), _N_RING)
+    level = frac.reshape(shape).mean(axis=0)
+    # Where both rings are seen, the darker of the two decides.
+    worst = np.where(seen, frac, np.inf).reshape(shape).max(axis=0)
+    runs = []
+    for t in _RUN_THRESHOLDS:
+        runs += [r for r in _dark_runs(worst <= t, level) if r[1] <= _MAX_RUN_HALF]
+    return runs
 
 
 def _looks_like_a_bar(
@@ -221,12 +223,7 @@ def dark_bands(
     contrast = max(white - black, 1e-6)
     # Several thresholds: a black bar in front of a gray background is a short
     # run only below the background's level.
-    runs = [
-        r
-        for t in _RUN_THRESHOLDS
-        for r in _rim_runs(gray, image_H_sign, black, white, t)
-        if r[1] <= _MAX_RUN_HALF
-    ]
+    runs = _rim_runs(gray, image_H_sign, black, white)
     if len(runs) < 2:
         return []
     pairs = [(i, j) for i in range(len(runs)) for j in range(i + 1, len(runs))]
@@ -271,6 +268,19 @@ def crossed(bands: list[Band], centres: np.ndarray, half_sizes: np.ndarray) -> n
     return out
 
 
+def _bilinear_weights(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N, 4) weights of a quad's corners for the points at fractions (a, b) along its sides."""
+    a, b = np.meshgrid(a, b)
+    a, b = a.ravel(), b.ravel()
+    return np.stack([(1 - a) * (1 - b), a * (1 - b), a * b, (1 - a) * b], axis=1)
+
+
+# Interior points of a part, inset from its edges; the thin directional
+# rectangle's on its centre line only.
+_GRID_WEIGHTS = _bilinear_weights(_INSET, _INSET)
+_THIN_WEIGHTS = _bilinear_weights(_INSET, np.array([0.5]))
+
+
 def interior_min_white(
     gray: np.ndarray,
     image_H_sign: np.ndarray,
@@ -289,15 +299,11 @@ def interior_min_white(
             rectangle): sampled on their centre line only.
     """
     thin = np.zeros(len(quads), bool) if thin is None else thin
-    pts, counts = [], []
-    for q, is_thin in zip(quads, thin.tolist(), strict=True):
-        a, b = np.meshgrid(_INSET, [0.5] if is_thin else _INSET)
-        a, b = a.ravel()[:, None], b.ravel()[:, None]
-        # Bilinear points inside the quad, inset from its edges.
-        pts.append(
-            (1 - a) * (1 - b) * q[0] + a * (1 - b) * q[1] + a * b * q[2] + (1 - a) * b * q[3]
-        )
-        counts.append(len(a))
+    pts = [
+        (_THIN_WEIGHTS if t else _GRID_WEIGHTS) @ q
+        for q, t in zip(quads, thin.tolist(), strict=True)
+    ]
+    counts = [len(p) for p in pts]
     frac = (_sample(gray, _project(image_H_sign, np.concatenate(pts))) - black) / max(
         white - black, 1e-6
     )
@@ -329,10 +335,25 @@ def _inside_quads(xy: np.ndarray, quads: np.ndarray, grow: float) -> np.ndarray:
     return inside
 
 
+# The sign's parts in the decoder's order: centre, direction, slot1..slot4.
+_PARTS = sign_shape("1111", 1.0).white_parts
+PART_QUADS = np.stack(
+    [_PARTS[n] for n in ("center", "direction", "slot1", "slot2", "slot3", "slot4")]
+)
+# Blur margins are rounded to this [diameters], so the grid masks can be cached.
+_GROW_STEP = 0.01
+
+
+@functools.cache
+def _unexplained_grid(known: tuple[int, ...], grow_steps: int) -> np.ndarray:
+    """The face grid's points outside the ``known`` parts grown by ``grow_steps`` steps."""
+    return _GRID[~_inside_quads(_GRID, PART_QUADS[list(known)], grow_steps * _GROW_STEP)]
+
+
 def unexplained_white(
     gray: np.ndarray,
     image_H_sign: np.ndarray,
-    known_quads: np.ndarray,
+    known_parts: tuple[int, ...],
     black: float,
     white: float,
     grow: float,
@@ -340,10 +361,10 @@ def unexplained_white(
     """White on the face outside every part the reading explains.
 
     Args:
-        known_quads: (P, 4, 2) quads [diameters] of the read code's white parts
-            and of every slot whose bit is unknown.
+        known_parts: indices into ``PART_QUADS`` of the read code's white
+            parts and of every slot whose bit is unknown.
         grow: margin around them for blur [diameters].
     """
-    pts = _GRID[~_inside_quads(_GRID, known_quads, grow)]
+    pts = _unexplained_grid(tuple(sorted(known_parts)), int(math.ceil(grow / _GROW_STEP)))
     frac = (_sample(gray, _project(image_H_sign, pts)) - black) / max(white - black, 1e-6)
     return int((frac > _WHITE_FRAC).sum()) > max(1, _MAX_UNEXPLAINED * len(pts))

@@ -9,7 +9,7 @@ from signpose.frontend import occlusion
 from signpose.frontend.decoder import REASONS, DecodeReason, decode_roi
 from signpose.frontend.homography import apply_homography
 from signpose.frontend.observations import FrameObservations, SignObservation
-from signpose.frontend.sign import sign_shape, slot_angle_rad
+from signpose.frontend.sign import slot_angle_rad
 
 from signpose.io.observations import frame_from_dict, frame_to_json
 from signpose.sim.crops import render_crop
@@ -66,9 +66,8 @@ def test_without_a_map_any_erased_slot_is_refused():
 def test_white_that_the_reading_does_not_explain_is_found():
     """The 1110-read-as-1000 failure: two white slots the homography missed."""
     crop = render_crop("1110", np.random.default_rng(5), sign_px=60, rotation_deg=40)
-    quads = sign_shape("1111", 1.0).white_parts
-    as_1110 = np.stack([quads[n] for n in ("center", "direction", "slot1", "slot2", "slot3")])
-    as_1000 = np.stack([quads[n] for n in ("center", "direction", "slot1")])
+    as_1110 = (0, 1, 2, 3, 4)  # centre, direction, slots 1-3
+    as_1000 = (0, 1, 2)
     # The crop's sign is 1 m across, so its homography is in diameter units.
     h = crop.crop_H_sign
     black, white = 28.0, 232.0
@@ -108,3 +107,19 @@ def test_bad_erased_slots_are_rejected():
     }
     with pytest.raises(ValueError, match="erased_slots"):
         frame_from_dict(d)
+
+
+def test_sigma_grows_when_a_line_crosses_the_face():
+    """The calibrated sigma sees a conductor across the sign (sim truth: errors grow)."""
+    rng = np.random.default_rng(12)
+    clean = decode_roi(render_crop("1010", rng, sign_px=80, rotation_deg=30).image)
+    crossed = [
+        decode_roi(render_crop("1010", rng, sign_px=80, rotation_deg=30, power_line=True).image)
+        for _ in range(6)
+    ]
+    crossed = [r for r in crossed if r.code == "1010"]
+    assert clean.code == "1010" and crossed
+    assert set(clean.keypoint_sigma_px) == set(clean.keypoints_px)
+    su, sv = clean.keypoint_sigma_px["center"]
+    assert 0.0 < su == sv < 0.1  # a clean 80 px sign: a few hundredths of a pixel
+    assert max(r.keypoint_sigma_px["center"][0] for r in crossed) > 2 * su
