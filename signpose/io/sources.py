@@ -109,22 +109,24 @@ class FrameSource:
         """The frames in order; frames of another size than the first are skipped and counted."""
         self.problems = list(self._notes)
         size: tuple[int, int] | None = None
-        odd: list[Frame] = []
+        n_odd = 0
+        first_odd = ""  # "frame i, WxH" of the first frame skipped
         index = 0
         for frame in self._read():
             if size is None:
                 size = frame.image_size
             elif frame.image_size != size:
-                odd.append(frame)
+                if not n_odd:
+                    w, h = frame.image_size
+                    first_odd = f"frame {frame.index}, {w}x{h}"
+                n_odd += 1
                 continue
             yield frame if frame.index == index else replace(frame, index=index)
             index += 1
-        if odd:
-            first = odd[0]
+        if n_odd:
             self._problem(
-                f"{len(odd)} frame(s) of another size than the first frame's {size[0]}x{size[1]} "
-                f"skipped (first: frame {first.index}, "
-                f"{first.image_size[0]}x{first.image_size[1]})"
+                f"{n_odd} frame(s) of another size than the first frame's {size[0]}x{size[1]} "
+                f"skipped (first: {first_odd})"
             )
 
     def _read(self) -> Iterator[Frame]:
