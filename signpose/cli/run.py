@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         topic=args.topic,
         fps=args.fps,
         settings=settings,
-        progress=not args.quiet,
+        progress=args.progress,
     )
     print_result(result)
     if result.problems:
