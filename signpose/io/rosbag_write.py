@@ -21,13 +21,12 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from signpose.core.errors import OutputError
@@ -281,10 +280,3 @@ def _swap_in(staged: Path, target: Path) -> None:
     staged.rename(target)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
-
-
-def read_bag_messages(path: str | os.PathLike) -> Iterator[tuple[str, int, object]]:
-    """(topic, log time [ns], decoded message) of a bag, in time order (for tests and tools)."""
-    with Reader(Path(path)) as reader:
-        for conn, stamp_ns, raw in reader.messages():
-            yield conn.topic, int(stamp_ns), _store().deserialize_cdr(raw, conn.msgtype)
