@@ -1,8 +1,10 @@
 """rosbag2 out: a run's results as a bag folder that ROS 2 tools open (MCAP storage).
 
 Written with the ``rosbags`` writer (rosbag2 metadata version 8, storage
-``mcap``, CDR messages with their ROS 2 message definitions in the file), so
-``ros2 bag``, rosbags readers, evo's bag mode and Foxglove read it. Topics:
+``mcap`` with the ``ros2`` profile, CDR messages with their ROS 2 message
+definitions in the file). The tests read it back with rosbags (which evo's bag
+mode uses); ``ros2 bag`` of Iron and later reads metadata version 8, Humble's
+may refuse it. Topics:
 
     /signpose/<method>/pose   geometry_msgs/msg/PoseStamped  world_T_cam per frame
     /signpose/<method>/path   nav_msgs/msg/Path              the whole trajectory, once
