@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from signpose.maps.loader import bundled_map_path
@@ -12,7 +13,9 @@ from signpose.maps.loader import bundled_map_path
 from signpose import batch
 from signpose.cli import COMMANDS, EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, build_parser, main
 from signpose.cli.batch import exit_code
+from signpose.cli.run import print_result
 from signpose.core.errors import InputError
+from signpose.pipeline import RunResult
 
 MAP = str(bundled_map_path())
 RUN = ["run", "in.mp4", "--map", "m.yaml", "--out", "o"]
@@ -122,3 +125,27 @@ def test_progress_bars_only_on_a_terminal(monkeypatch, argv, tty, progress):
     monkeypatch.setattr(sys.stderr, "isatty", lambda: tty)
     assert main(["sign", "0101", "--out", "x.svg", *argv]) == EXIT_OK
     assert seen == [progress]
+
+
+def test_run_quiet_prints_the_result_without_timing_or_file_list(capsys):
+    result = RunResult(
+        out_dir=Path("out"),
+        n_frames=3,
+        coverage={"smoothed": 1.0},
+        position_rmse_m={"smoothed": 0.02},
+        comparison=None,
+        comparison_table="",
+        timing_s={"total": 1.0},
+        fps=3.0,
+        problems=(),
+        files=(Path("out/a.tum"), Path("out/report.html")),
+    )
+    print_result(result, quiet=True)
+    quiet = capsys.readouterr().out.splitlines()
+    assert quiet == [
+        "3 frames; poses for smoothed 100.0%",
+        "position RMSE vs ground truth: smoothed 0.020 m",
+        "wrote 2 files into out",
+    ]
+    print_result(result)
+    assert len(capsys.readouterr().out.splitlines()) == len(quiet) + 3  # timing + 2 files

@@ -39,7 +39,7 @@ COMMANDS = (
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 # Options every command takes before or after its name: ``signpose -q run`` = ``signpose run -q``.
 GLOBAL_OPTIONS = (
-    (("-q", "--quiet"), "no progress bars"),
+    (("-q", "--quiet"), "no progress bars, no timing or file lists: the result and errors"),
     (("-v", "--verbose"), "log diagnostics"),
     (("--debug",), "show tracebacks of internal errors"),
     (("--progress",), "progress bars also when stderr is not a terminal (a log file)"),
@@ -133,9 +133,8 @@ def _stdout_to_devnull() -> None:
 
 def add_quiet(parser: argparse.ArgumentParser) -> None:
     # SUPPRESS: not given here keeps what was given before the command (``signpose -q run``).
-    parser.add_argument(
-        "-q", "--quiet", action="store_true", default=argparse.SUPPRESS, help="no progress bars"
-    )
+    flags, help_text = GLOBAL_OPTIONS[0]
+    parser.add_argument(*flags, action="store_true", default=argparse.SUPPRESS, help=help_text)
 
 
 def add_cascade(parser: argparse.ArgumentParser) -> None:

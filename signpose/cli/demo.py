@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
         progress=args.progress,
         cascade_path=str(args.cascade or ""),
     )
-    print_result(result.run)
+    print_result(result.run, quiet=args.quiet)
     print(f"simulated flight in {result.flight_dir}; results in {result.run.out_dir}")
     print(f"open {result.run.out_dir / 'result.mcap'} in Foxglove; plots: *.png there")
     return 0

@@ -64,8 +64,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def print_result(result: RunResult, out: TextIO | None = None) -> None:
-    """The user's summary of a run: table, coverage, timing, files (to stdout by default)."""
+def print_result(result: RunResult, out: TextIO | None = None, quiet: bool = False) -> None:
+    """The user's summary of a run: table, coverage, timing, files (to stdout by default).
+
+    ``quiet``: the result only: no timing, one line for the files.
+    """
     out = out if out is not None else sys.stdout
     if result.comparison_table:
         print(result.comparison_table, file=out)
@@ -81,6 +84,9 @@ def print_result(result: RunResult, out: TextIO | None = None) -> None:
             f"or the track ({why}); listed in report.json",
             file=out,
         )
+    if quiet:
+        print(f"wrote {len(result.files)} files into {result.out_dir}", file=out)
+        return
     t = result.timing_s
     split = ", ".join(f"{k} {1000 * t.get(k, 0.0) / max(result.n_frames, 1):.1f}" for k in STAGES)
     print(f"{result.fps:.1f} frames/s; ms per frame: {split}", file=out)
@@ -119,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         settings=settings,
         progress=args.progress,
     )
-    print_result(result)
+    print_result(result, quiet=args.quiet)
     if result.problems:
         print(
             f"signpose run: error: {'; '.join(result.problems)} "
