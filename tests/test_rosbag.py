@@ -598,3 +598,12 @@ def test_run_writes_a_ros2_bag_with_the_inputs_frame_id(jpeg_flight, tmp_path, c
     assert {m.transforms[0].child_frame_id for m in tf} == {FRAME_ID}
     transforms = mcap_io.read_json_messages(out / "result.mcap", mcap_io.TF_TOPIC)
     assert {t["transforms"][0]["child_frame_id"] for t in transforms} == {FRAME_ID}
+
+
+def test_result_bag_over_a_file_is_refused(tmp_path):
+    bag, _, _ = _result_inputs(2)
+    target = tmp_path / "result_bag"
+    target.write_text("not a bag")
+    with pytest.raises(OutputError, match="exists and is not a folder"):
+        write_result_bag(target, bag)
+    assert target.read_text() == "not a bag"

@@ -255,6 +255,8 @@ def write_result_bag(path: str | os.PathLike, bag: ResultBag) -> Path:
         OutputError: the folder cannot be written (named with its final path).
     """
     target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise OutputError(f"{target}: exists and is not a folder; remove it or choose another")
     parent = target.parent if str(target.parent) else Path(".")
     try:
         work = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
