@@ -2,8 +2,14 @@
 
 ``estimate_trajectories`` runs the paper's per-frame baseline, per-frame PnP
 and the gtsam smoother (batch or iSAM2) and builds the outlier report;
-``estimator.results_io`` writes the result. The pipeline calls these; the
+``signpose.io.results`` writes the result. The pipeline calls these; the
 CLI is a thin layer over them.
+
+The smoother's path: keypoints far from the frame's RANSAC PnP pose are
+gated; a Huber solve; rounds of the innovation test against the pose the
+neighbours predict (``estimator.robust``); the motion prior chosen from the
+flight (``estimator.tuning``); the final solve with a redescending kernel.
+Each pose then gets its status (``estimator.status``).
 """
 
 from __future__ import annotations
@@ -358,6 +364,7 @@ MIN_SHARED_SIGNS = 3
 ORIENTATION_MAX_BEHIND = 0.5
 ORIENTATION_MAX_DIAMETERS = 0.25
 ORIENTATION_MIN_FRAMES = 5
+ORIENTATION_MAX_FRAMES = 200  # evenly spaced observations of a sign suffice for a median
 
 
 def _median(values: list[float]) -> float:
@@ -409,7 +416,8 @@ def check_orientations(
         seen = uses.get(sign.code, [])
         if not sign.oriented or len(seen) < ORIENTATION_MIN_FRAMES:
             continue
-        behind, centre_d, other_d = _sign_fit(sign, seen, m.world_T_cam, camera)
+        step = max(1, len(seen) // ORIENTATION_MAX_FRAMES)
+        behind, centre_d, other_d = _sign_fit(sign, seen[::step], m.world_T_cam, camera)
         if behind > ORIENTATION_MAX_BEHIND:
             raise InputError(
                 f"{src}: sign {sign.code} is seen from behind in {100 * behind:.0f} % of the "

@@ -12,6 +12,7 @@ pixel pairs), written out to avoid a scipy dependency.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -28,21 +29,22 @@ def cam_points(world_T_cam: np.ndarray, world_p: np.ndarray) -> np.ndarray:
     return (world_p - world_T_cam[:3, 3]) @ world_T_cam[:3, :3]
 
 
-def pixels_and_pose_jacobian(
+def pixels_and_jacobians(
     camera: CameraModel, world_T_cam: np.ndarray, world_p: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Projected pixels and their Jacobians.
+    """Projected pixels and their Jacobians, one pose per point.
 
     Args:
         camera: the camera (only K is used).
-        world_T_cam: (4, 4) camera pose.
+        world_T_cam: (K, 4, 4) the pose each point is seen from.
         world_p: (K, 3) world points [m].
 
     Returns:
         ((K, 2) undistorted pixels, (K, 2, 6) d(pixel)/d(xi) for the pose
         perturbation xi = [omega, v], (K, 2, 3) d(pixel)/d(world point)).
     """
-    pc = cam_points(world_T_cam, np.asarray(world_p, float).reshape(-1, 3))
+    R, t = world_T_cam[:, :3, :3], world_T_cam[:, :3, 3]
+    pc = np.einsum("kji,kj->ki", R, np.asarray(world_p, float).reshape(-1, 3) - t)
     x, y = pc[:, 0], pc[:, 1]
     z = np.maximum(pc[:, 2], MIN_DEPTH_M)
     uv = np.stack([camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy], axis=1)
@@ -57,8 +59,17 @@ def pixels_and_pose_jacobian(
     skew[:, 1, 0], skew[:, 1, 2] = pc[:, 2], -pc[:, 0]
     skew[:, 2, 0], skew[:, 2, 1] = -pc[:, 1], pc[:, 0]
     d_pose = np.concatenate([d_pi @ skew, -d_pi], axis=2)
-    d_point = d_pi @ world_T_cam[:3, :3].T
+    d_point = np.einsum("kab,kcb->kac", d_pi, R)  # d_pi R^T
     return uv, d_pose, d_point
+
+
+def pixels_and_pose_jacobian(
+    camera: CameraModel, world_T_cam: np.ndarray, world_p: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``pixels_and_jacobians`` with one (4, 4) pose for all (K, 3) points."""
+    world_p = np.asarray(world_p, float).reshape(-1, 3)
+    poses = np.broadcast_to(world_T_cam, (len(world_p), 4, 4))
+    return pixels_and_jacobians(camera, poses, world_p)
 
 
 def pose_information(
@@ -89,8 +100,9 @@ def chi2_survival_even(x: float, dof: int) -> float:
     return math.exp(-half) * total
 
 
+@functools.lru_cache(maxsize=1024)
 def chi2_quantile_even(p: float, dof: int) -> float:
-    """x with P(chi2 <= x) = p, for even ``dof`` (bisection on the closed form)."""
+    """x with P(chi2 <= x) = p, for even ``dof`` (bisection on the closed form; cached)."""
     if dof % 2 or dof <= 0:
         raise ValueError(f"dof must be even and positive, got {dof}")
     tail = 1.0 - p

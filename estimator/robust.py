@@ -23,7 +23,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from signpose.estimator.camera import CameraModel
-from signpose.estimator.projection import chi2_quantile_even, pixels_and_pose_jacobian
+from signpose.estimator.projection import (
+    chi2_quantile_even,
+    pixels_and_jacobians,
+    pixels_and_pose_jacobian,
+)
 from signpose.estimator.smoother import CONSTANT_VELOCITY, Measurements, SmootherSettings
 
 # Without marginals (very long flights) the neighbours' pose uncertainty is
@@ -206,6 +210,45 @@ def innovation_chi2(
         return float("inf")
 
 
+def _group_chi2(
+    meas: Measurements,
+    groups: np.ndarray,
+    pred: np.ndarray,
+    pred_cov: np.ndarray,
+    camera: CameraModel,
+) -> np.ndarray:
+    """(G,) innovation chi-square of G sign observations of K keypoints each, (G, K) ids.
+
+    ``innovation_chi2`` for many observations at once.
+    """
+    g, k = groups.shape
+    ids = groups.reshape(-1)
+    frame = meas.frame[groups[:, 0]]
+    lm = meas.landmark[ids]
+    uv, J_pose, J_point = pixels_and_jacobians(
+        camera, pred[meas.frame[ids]], meas.landmark_world[lm]
+    )
+    r = (meas.px[ids] - uv).reshape(g, 2 * k)
+    J = J_pose.reshape(g, 2 * k, 6)
+    S = J @ pred_cov[frame] @ J.transpose(0, 2, 1)
+    noise = (
+        meas.sigma_px[ids, None, None] ** 2 * np.eye(2)
+        + meas.landmark_sigma_m[lm, None, None] ** 2 * J_point @ J_point.transpose(0, 2, 1)
+    ).reshape(g, k, 2, 2)
+    for a in range(k):
+        S[:, 2 * a : 2 * a + 2, 2 * a : 2 * a + 2] += noise[:, a]
+    try:
+        x = np.linalg.solve(S, r[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        return np.array(
+            [
+                innovation_chi2(meas, ids_g, pred[f], pred_cov[f], camera)
+                for ids_g, f in zip(groups, frame, strict=True)
+            ]
+        )
+    return np.einsum("gi,gi->g", r, x)
+
+
 def worst_innovations(
     meas: Measurements,
     active: np.ndarray,
@@ -217,17 +260,22 @@ def worst_innovations(
     """The worst failing sign observation of each frame: (ids, chi2, threshold) each.
 
     Only ``active`` measurements count; an observation whose chi-square
-    exceeds its quantile at ``1 - alpha`` fails.
+    exceeds its quantile at ``1 - alpha`` fails. Observations with the same
+    number of keypoints are tested together.
     """
-    worst: dict[int, tuple[float, np.ndarray, float, float]] = {}
+    by_size: dict[int, list[np.ndarray]] = {}
     for ids in sign_groups(meas):
         ids = ids[active[ids]]
-        if len(ids) == 0:
-            continue
-        i = int(meas.frame[ids[0]])
-        chi2 = innovation_chi2(meas, ids, pred[i], pred_cov[i], camera)
-        threshold = chi2_quantile_even(1.0 - alpha, 2 * len(ids))
-        ratio = chi2 / threshold
-        if ratio > 1.0 and (i not in worst or ratio > worst[i][0]):
-            worst[i] = (ratio, ids, chi2, threshold)
+        if len(ids):
+            by_size.setdefault(len(ids), []).append(ids)
+    worst: dict[int, tuple[float, np.ndarray, float, float]] = {}
+    for k, lists in by_size.items():
+        groups = np.array(lists)
+        chi2 = _group_chi2(meas, groups, pred, pred_cov, camera)
+        threshold = chi2_quantile_even(1.0 - alpha, 2 * k)
+        for ids, c in zip(groups, chi2, strict=True):
+            i = int(meas.frame[ids[0]])
+            ratio = c / threshold
+            if ratio > 1.0 and (i not in worst or ratio > worst[i][0]):
+                worst[i] = (ratio, ids, float(c), threshold)
     return [(ids, chi2, thr) for _, ids, chi2, thr in worst.values()]

@@ -3,10 +3,14 @@
 Factor graph:
     * one ``Pose3`` per frame, ``world_T_cam`` (key ``x<i>``, i = position in
       the frame list), camera axes OpenCV's (x right, y down, z forward);
-    * one ``Point3`` per map keypoint (key ``l<j>``), world frame [m], with a
-      ``PriorFactorPoint3`` from the map's ``sigma_m``;
+    * one ``Point3`` per map keypoint (key ``l<j>``), world frame [m]; the
+      survey (``landmarks``): rigid signs (default: a ``Point3`` per sign
+      centre, key ``s<k>``, with a ``PriorFactorPoint3`` of the map's
+      ``sigma_m``, its keypoints tied to it at the map's offsets), every
+      keypoint with its own prior, or the survey as exact;
     * a ``GenericProjectionFactorCal3_S2`` per observed keypoint on undistorted
-      pixels, noise ``Robust(Huber(k), Isotropic(sigma_px))``;
+      pixels, noise ``Robust(kernel, Isotropic(sigma_px))`` with a Huber
+      (default), Tukey or no kernel (GNC weighs plain Gaussian factors);
     * a motion prior between consecutive frames scaled by their time step dt:
       ``random-walk``: ``BetweenFactorPose3`` to the identity with sigmas
       ``q * sqrt(dt)``; ``constant-velocity``: a world-frame velocity
@@ -18,8 +22,12 @@ Factor graph:
     * a very weak prior on the first pose (and velocity), so that every
       iSAM2 step is well posed even before the first sign is seen.
 
-Solvers: batch Levenberg-Marquardt and iSAM2 (whose estimate of the newest
-frame after each update is the causal, filter-like result).
+Solvers: batch Levenberg-Marquardt (or ``gtsam.GncLMOptimizer``) and iSAM2
+(whose estimate of the newest frame after each update is the causal,
+filter-like result). Also: the Laplace-approximated evidence of a motion
+prior (``log_evidence``), the graph's covariances at given poses (the
+Cramér-Rao bound at the truth, ``covariances_at``) and the joint solve of
+several flights for the sign centres (``solve_map``).
 """
 
 from __future__ import annotations

@@ -64,7 +64,7 @@ class TuningSettings:
     holdout_every: int = 5
     cap_chi2: float = 25.0
     min_frames: int = 20
-    max_frames: int = 1500
+    max_frames: int = 600
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,12 @@ method has no pose or no sigma (never NaN); status is a token: ``ok``,
 ``weak``, ``bridged`` or ``suspect`` for a pose (see
 ``estimator.status.PoseStatus``), else why there is none (``few_signs``,
 ``collinear``, ...: ``estimator.perframe.PoseFailure``).
+
+report.json: settings, versions, per method coverage with the share of each
+status token and the weak poses' worst-axis sigma, timing, the outliers
+(down-weighted, mis-decoded, and ``rejected``: each observation left out with
+the test that rejected it: ``pnp_gate``, ``innovation``, ``tukey`` or
+``gnc``), and the motion prior chosen from the flight.
 """
 
 from __future__ import annotations
