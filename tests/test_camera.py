@@ -408,6 +408,8 @@ def test_camera_command_prints_what_it_read_and_converts(tmp_path, capsys):
     _assert_same(cam, load_camera(out))
     assert cli_main(["camera", str(src), "--to", "opencv"]) == 2
     assert "--to and --out go together" in capsys.readouterr().err
+    assert cli_main(["camera", str(src), "--to", "opencv", "--out", str(tmp_path)]) == 2
+    assert f"{tmp_path}: is a folder" in capsys.readouterr().err
 
 
 def test_ros_rational_polynomial_with_8_coefficients(tmp_path):

@@ -36,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if (args.to is None) != (args.out is None):
         raise InputError("--to and --out go together: give both to convert, neither to check")
+    if args.out is not None and args.out.is_dir():
+        raise InputError(f"{args.out}: is a folder; --out names the file to write")
     found = read_camera_file(args.file)
     if args.to is not None:
         WRITERS[args.to](args.out, found.camera)
