@@ -204,8 +204,9 @@ def run_independent(n_per_condition: int, seed: int, quiet: bool) -> dict:
                 keys.append("unoccluded >= 18 px")
             if group == "occluded, 1 slot":
                 slot = crop.covered_slots[0]
-                # Exactly one part covered: the coded slot, nothing else touched.
-                alone = all(v < 0.02 for k, v in crop.covered.items() if k != f"slot{slot}")
+                # Exactly one slot covered: the centre and directional
+                # rectangles untouched, other slots at most grazed.
+                alone = max(crop.covered["center"], crop.covered["direction"]) < 0.02
                 if _unique_with_one_erased(crop.code, slot, codes) and alone:
                     keys.append("1 slot, unique in map")
             for key in keys + ["all"]:

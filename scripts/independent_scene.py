@@ -35,7 +35,13 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from signpose.frontend.sign import PAPER_CODES, render_sign_png, sign_keypoints, sign_shape
+from signpose.frontend.sign import (
+    PAPER_CODES,
+    render_sign_png,
+    sign_keypoints,
+    sign_shape,
+    slot_angle_rad,
+)
 
 DIAMETER_M = 0.8
 SUPERSAMPLE = 4
@@ -65,6 +71,7 @@ class SceneSettings:
     noise_sigma: float = 2.0
     jpeg_quality: int = 85
     members_front: int = 0  # wide bars in front of the sign
+    bar_over_slot: int = 0  # 1..4: a member in front laid across that coded slot
     conductors_front: int = 0  # thin bars in front of the sign
     bars_behind: int = 0
     dirt: bool = False
@@ -165,14 +172,26 @@ def _bar_polygon(k, p0: np.ndarray, p1: np.ndarray, radius_m: float) -> np.ndarr
     )
 
 
-def _random_bar(rng, k, r, t, width_frac: float, depth_m: float) -> tuple[np.ndarray, float]:
-    """A long cylinder passing ``depth_m`` in front of (negative: behind) a point of the face."""
-    q_sign = np.array([*rng.uniform(-0.45, 0.45, 2) * DIAMETER_M, 0.0])
+def _random_bar(
+    rng, k, r, t, width_frac: float, depth_m: float, over_slot: int = 0
+) -> tuple[np.ndarray, float]:
+    """A long cylinder passing ``depth_m`` in front of (negative: behind) a point of the face.
+
+    ``over_slot`` (1..4): through that coded slot's centre, about along the slot's
+    tangential direction (+-10 deg), so that it hides the slot; else anywhere.
+    """
+    if over_slot:
+        theta = slot_angle_rad(over_slot)
+        q_sign = 0.3 * DIAMETER_M * np.array([math.cos(theta), math.sin(theta), 0.0])
+        a = theta - math.pi / 2 + math.radians(rng.uniform(-10, 10))
+        d = r @ np.array([math.cos(a), math.sin(a), 0.0])
+    else:
+        q_sign = np.array([*rng.uniform(-0.45, 0.45, 2) * DIAMETER_M, 0.0])
+        d = rng.normal(size=3)
+        d[2] *= 0.3  # mostly across the view
+        d /= np.linalg.norm(d)
     q = r @ q_sign + t
     q = q - depth_m * q / np.linalg.norm(q)  # toward the camera along the ray
-    d = rng.normal(size=3)
-    d[2] *= 0.3  # mostly across the view
-    d /= np.linalg.norm(d)
     z_min = 0.3 * q[2]
     p0, p1 = q - 20 * d, q + 20 * d
     # Keep the segment in front of the camera.
@@ -279,19 +298,25 @@ def render_scene_crop(code: str, s: SceneSettings, rng: np.random.Generator) -> 
     canvas = canvas * (1 - cover) + face * cover
     occluder = np.zeros((n, n), np.float32)
     bars = []
-    for kind, count in (("member", s.members_front), ("conductor", s.conductors_front)):
-        for _ in range(count):
-            if kind == "member":
-                width = rng.uniform(0.08, 0.35)
-                lo = rng.uniform(25, 120) if rng.random() > 0.15 else rng.uniform(130, 190)
-                hi = lo + rng.uniform(0, 50)
-            else:
-                width = rng.uniform(0.015, 0.06)
-                lo = rng.uniform(10, 70)
-                hi = lo + rng.uniform(0, 20)
-            poly, radius = _random_bar(rng, k, r, t, width, rng.uniform(0.05, 1.5))
-            _draw_bar(canvas, occluder, poly, lo, hi, side)
-            bars.append({"kind": kind, "width_frac": float(width)})
+    front = [("member", 0)] * s.members_front + [("conductor", 0)] * s.conductors_front
+    if s.bar_over_slot:
+        front.append(("member", s.bar_over_slot))
+    for kind, slot in front:
+        if kind == "member" and slot:
+            width = rng.uniform(0.16, 0.2)
+            lo = rng.uniform(25, 120)
+            hi = lo + rng.uniform(0, 40)
+        elif kind == "member":
+            width = rng.uniform(0.08, 0.35)
+            lo = rng.uniform(25, 120) if rng.random() > 0.15 else rng.uniform(130, 190)
+            hi = lo + rng.uniform(0, 50)
+        else:
+            width = rng.uniform(0.015, 0.06)
+            lo = rng.uniform(10, 70)
+            hi = lo + rng.uniform(0, 20)
+        poly, radius = _random_bar(rng, k, r, t, width, rng.uniform(0.05, 1.5), slot)
+        _draw_bar(canvas, occluder, poly, lo, hi, side)
+        bars.append({"kind": kind, "width_frac": float(width)})
     img = cv2.resize(canvas, (side, side), interpolation=cv2.INTER_AREA)
     if s.blur_px > 0:
         img = cv2.filter2D(img, -1, _motion_kernel(s.blur_px, rng.uniform(0, math.pi)))
@@ -324,6 +349,7 @@ CONDITIONS = (
     "faded or dirty face",
     "member in front",
     "conductor in front",
+    "one slot covered",
     "mixed",
 )
 
@@ -361,6 +387,8 @@ def scene_settings(rng: np.random.Generator, condition: str) -> SceneSettings:
         kw["dirt"] = bool(rng.random() < 0.6)
     if condition == "member in front" or (mixed and rng.random() < 0.15):
         kw["members_front"] = 1
+    if condition == "one slot covered":
+        kw["bar_over_slot"] = int(rng.integers(1, 5))
     if condition == "conductor in front" or (mixed and rng.random() < 0.15):
         kw["conductors_front"] = int(rng.integers(1, 3))
     return SceneSettings(**kw)
