@@ -149,3 +149,10 @@ def test_run_quiet_prints_the_result_without_timing_or_file_list(capsys):
     ]
     print_result(result)
     assert len(capsys.readouterr().out.splitlines()) == len(quiet) + 3  # timing + 2 files
+
+
+def test_simulate_quiet_prints_one_line(tmp_path, capsys):
+    argv = ["simulate", "--out", str(tmp_path / "sim"), "--frames", "2", "--width", "160"]
+    assert main([*argv, "--height", "120", "-q"]) == EXIT_OK
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 1 and out[0].startswith("simulated 2 frames")

@@ -90,9 +90,12 @@ def run(args: argparse.Namespace) -> int:
         settings = replace(settings, tune_motion=False)
     result = estimate_trajectories(frames, sign_map, camera, settings, progress=args.progress)
     written = write_outputs(args.out, result)
-    if not args.quiet:
-        for name, m in result.methods.items():
-            print(f"{name}: {int(m.valid.sum())}/{len(m.valid)} frames posed")
+    if args.quiet:  # the result and errors only
         print(status_line(result))
-        print(f"wrote {', '.join(str(p) for p in written)}")
+        print(f"wrote {len(written)} files into {args.out}")
+        return 0
+    for name, m in result.methods.items():
+        print(f"{name}: {int(m.valid.sum())}/{len(m.valid)} frames posed")
+    print(status_line(result))
+    print(f"wrote {', '.join(str(p) for p in written)}")
     return 0

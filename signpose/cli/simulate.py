@@ -114,8 +114,9 @@ def run(args: argparse.Namespace) -> int:
     result = simulate(sign_map, args.out, settings, progress=args.progress)
     print(
         f"simulated {result.n_frames} frames ({settings.trajectory}, seed {settings.seed}) "
-        f"of {map_path} into {result.out_dir}:"
+        f"of {map_path} into {result.out_dir}" + ("" if args.quiet else ":")
     )
-    for path in result.paths():
-        print(f"  {path}")
+    if not args.quiet:  # --quiet: the result line only
+        for path in result.paths():
+            print(f"  {path}")
     return 0
