@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import csv
 import html
+import logging
 import math
 import os
 from collections.abc import Iterable, Mapping
@@ -27,6 +28,7 @@ from pathlib import Path
 from signpose.core.fileio import atomic_write
 from signpose.io.results import read_report
 
+log = logging.getLogger(__name__)
 RUN_REPORT_NAME = "report.html"
 INDEX_NAME = "index.html"
 REPORT_JSON_NAME = "report.json"
@@ -284,9 +286,27 @@ def render_run_report(out_dir: str | os.PathLike, report: Mapping | None = None)
         report = read_report(path) if path.is_file() else {}
     body = _head_section(out.resolve().name, report)
     for part in (_metrics_section, _status_section, _outlier_section):
-        body += part(report)
-    body += _plots_section(out) + _settings_section(report) + _files_section(out)
+        body += _guarded(part, report)
+    body += _plots_section(out) + _guarded(_settings_section, report) + _files_section(out)
     return _page(f"signpose run: {out.resolve().name}", body)
+
+
+def _guarded(part, report: Mapping) -> list[str]:
+    """``part(report)``, or one line saying it could not be shown.
+
+    report.json's sections grow with the estimator; a section in a form this
+    page does not know must not cost the run its other outputs.
+    """
+    try:
+        return part(report)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        name = part.__name__.strip("_").removesuffix("_section")
+        log.warning("report.html: %s section not shown: %s", name, exc)
+        return [
+            f"<h2>{html.escape(name)}</h2>\n",
+            f'<p class="problem">not shown: report.json has it in a form this page does not '
+            f"know ({html.escape(type(exc).__name__)}: {html.escape(str(exc))})</p>\n",
+        ]
 
 
 def write_run_report(out_dir: str | os.PathLike, report: Mapping | None = None) -> Path:

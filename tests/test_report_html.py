@@ -227,3 +227,14 @@ def test_pages_render_in_headless_chromium(tmp_path):
         assert proc.returncode == 0, proc.stderr[-500:]
         assert "</table>" in proc.stdout
         assert "Uncaught" not in proc.stderr and "CONSOLE" not in proc.stderr
+
+
+def test_a_section_in_an_unknown_form_does_not_stop_the_page(tmp_path, caplog):
+    report = _report()
+    report["coverage"]["smoothed"]["status"] = ["ok", "weak"]  # a list, not token -> share
+    report["metrics"]["methods"] = ["smoothed"]
+    page = check_page(write_run_report(tmp_path, report))
+    text = " ".join(page.text)
+    assert text.count("not shown: report.json has it in a form") == 2
+    assert "innovation" in text  # the other sections are there
+    assert "section not shown" in caplog.text
