@@ -53,7 +53,14 @@ from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.frontend.sign import ALL_CODES
 from signpose.io import mcap as mcap_io
 from signpose.io.observations import append_observation
-from signpose.io.results import compare_dir, metrics_table, read_report, write_json, write_outputs
+from signpose.io.results import (
+    compare_dir,
+    metrics_table,
+    read_report,
+    status_shares,
+    write_json,
+    write_outputs,
+)
 from signpose.io.rosbag_write import ResultBag, write_result_bag
 from signpose.io.sources import Frame, FrameSource, PrefetchedFrame, open_source, prefetch
 from signpose.io.tum import read_tum
@@ -194,6 +201,7 @@ class RunResult:
         problems: reading problems (truncated input ...).
         files: every file written.
         refused: refusal reason -> decoded readings refused (listed in report.json).
+        status: method -> share of each pose status token (ok, weak, bridged, ...).
     """
 
     out_dir: Path
@@ -207,6 +215,7 @@ class RunResult:
     problems: tuple[str, ...]
     files: tuple[Path, ...]
     refused: dict[str, int] = field(default_factory=dict)
+    status: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------- observations stream
@@ -961,6 +970,7 @@ def run(
         out_dir=out,
         n_frames=n,
         coverage={name: float(m.coverage) for name, m in estimate.methods.items()},
+        status={name: status_shares(m) for name, m in estimate.methods.items()},
         position_rmse_m=_position_errors(trajs, gt, comparison),
         comparison=comparison,
         comparison_table=table,

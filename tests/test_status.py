@@ -2,6 +2,7 @@
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +16,9 @@ from signpose.estimator.status import (
     state_from_token,
 )
 
+from signpose.cli.run import print_result
 from signpose.io.results import read_trajectory_csv, write_outputs
+from signpose.pipeline import RunResult
 
 
 @pytest.mark.parametrize(
@@ -90,3 +93,22 @@ def test_a_frame_with_one_centre_is_weak_and_its_neighbours_ok():
     status = r.methods["smoothed"].status
     assert status[12] is PoseStatus.WEAK
     assert status[11] is PoseStatus.OK and status[13] is PoseStatus.OK
+
+
+def test_run_summary_prints_the_status_shares(capsys):
+    result = RunResult(
+        out_dir=Path("out"),
+        n_frames=4,
+        coverage={"smoothed": 1.0},
+        position_rmse_m={},
+        comparison=None,
+        comparison_table="",
+        timing_s={"total": 1.0},
+        fps=4.0,
+        problems=(),
+        files=(),
+        status={"smoothed": {"ok": 0.75, "weak": 0.0, "bridged": 0.25}},
+    )
+    print_result(result, quiet=True)
+    lines = capsys.readouterr().out.splitlines()
+    assert "pose status: smoothed ok 75.0% weak 0.0% bridged 25.0%" in lines

@@ -74,6 +74,12 @@ def print_result(result: RunResult, out: TextIO | None = None, quiet: bool = Fal
         print(result.comparison_table, file=out)
     cov = ", ".join(f"{k} {100 * v:.1f}%" for k, v in result.coverage.items())
     print(f"{result.n_frames} frames; poses for {cov}", file=out)
+    if result.status:
+        shares = "; ".join(
+            f"{k} " + " ".join(f"{t} {100 * v:.1f}%" for t, v in st.items())
+            for k, st in result.status.items()
+        )
+        print(f"pose status: {shares}", file=out)
     if result.position_rmse_m:
         err = ", ".join(f"{k} {v:.3f} m" for k, v in result.position_rmse_m.items())
         print(f"position RMSE vs ground truth: {err}", file=out)
