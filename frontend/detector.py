@@ -114,6 +114,10 @@ class DetectorSettings:
         fast_local_raise: the local threshold is at most this much above the
             frame's [grey levels] (a sign's black stays dark; busy mid-grey
             texture does not become candidates).
+        fast_grey_discs: also take compact grey blobs with white parts inside,
+            standing out of pixels at most ``fast_black_margin`` above the
+            darkest, as candidates (a sign in front of a black sky, darker
+            than its paint).
         fast_min_range: ...in blobs with pixels this much brighter in or
             next to them (a sign spans black to white) [grey levels].
         fast_roi_grow: a candidate blob's box grows by this fraction of its
@@ -143,6 +147,8 @@ class DetectorSettings:
     fast_dark_margin: float = 25.0
     fast_local_tiles: tuple[int, int] = (8, 6)
     fast_local_raise: float = 20.0
+    fast_grey_discs: bool = True
+    fast_black_margin: float = 10.0
     fast_min_range: int = 50
     fast_roi_grow: float = 0.6
     fast_scale: tuple[float, float] = (0.6, 1.9)
@@ -417,7 +423,10 @@ class SignDetector:
         of the frame or of their part of it (``dark_threshold``) are opened
         (conductors and thin bars vanish) and grouped into blobs;
         compact blobs with bright pixels in or next to them (grey range >=
-        ``fast_min_range``) are candidate discs.
+        ``fast_min_range``) are candidate discs. In front of a black
+        background (a night sky, a deep shadow) the disc is the brighter
+        thing: compact dark grey blobs with white parts inside are
+        candidates too (``fast_grey_discs``).
 
         Returns:
             (x, y, w, h, blob_px) per candidate: the region to search [px]
@@ -431,7 +440,7 @@ class SignDetector:
         high = cv2.dilate(half, np.ones((7, 7), np.uint8))
         thr = self.dark_threshold(low)
         dark = (low <= thr).astype(np.uint8)
-        rois = []
+        rois: list[tuple[int, int, int, int, float]] = []
         # Opening removes conductors and thin bars, also where they touch a
         # sign; a wider opening frees big signs from thicker (near) conductors.
         for k in (5, 11):
@@ -446,17 +455,67 @@ class SignDetector:
                 dark_thr = float(thr[by + bh // 2, bx + bw // 2])
                 if int(high[by : by + bh, bx : bx + bw].max()) - dark_thr < s.fast_min_range:
                     continue
-                x0, y0, bw, bh = 2 * bx, 2 * by, 2 * bw, 2 * bh
-                size = float(max(bw, bh))
-                if size > s.max_size_frac * min(h, w) * 1.5:
-                    continue  # a dark mass far bigger than any sign we look for
-                grow = s.fast_roi_grow * size + 8
-                x1, y1 = int(min(x0 + bw + grow, w)), int(min(y0 + bh + grow, h))
-                x0, y0 = int(max(x0 - grow, 0)), int(max(y0 - grow, 0))
-                roi = (x0, y0, x1 - x0, y1 - y0, size)
-                if roi not in rois:
-                    rois.append(roi)
+                self._add_roi(rois, (bx, by, bw, bh), (h, w))
+        if s.fast_grey_discs:
+            # A black sky is darker than the paint: the disc stands out of the
+            # pixels barely above the darkest.
+            black_thr = thr - s.fast_dark_margin + s.fast_black_margin
+            for box in self._grey_discs(low, half, high, black_thr):
+                self._add_roi(rois, box, (h, w))
         return rois
+
+    def _add_roi(
+        self,
+        rois: list[tuple[int, int, int, int, float]],
+        box: tuple[int, int, int, int],
+        shape: tuple[int, int],
+    ) -> None:
+        """Append the search region of a candidate disc (``box``: half-size x, y, w, h)."""
+        s = self.settings
+        h, w = shape
+        x0, y0, bw, bh = (2 * v for v in box)
+        size = float(max(bw, bh))
+        if size > s.max_size_frac * min(h, w) * 1.5:
+            return  # a dark mass far bigger than any sign we look for
+        grow = s.fast_roi_grow * size + 8
+        x1, y1 = int(min(x0 + bw + grow, w)), int(min(y0 + bh + grow, h))
+        x0, y0 = int(max(x0 - grow, 0)), int(max(y0 - grow, 0))
+        roi = (x0, y0, x1 - x0, y1 - y0, size)
+        if roi not in rois:
+            rois.append(roi)
+
+    def _grey_discs(
+        self, low: np.ndarray, half: np.ndarray, high: np.ndarray, thr: np.ndarray
+    ) -> list[tuple[int, int, int, int]]:
+        """Half-size boxes of grey discs with white inside, on pixels darker than ``thr``.
+
+        The pixels above ``thr`` are opened (lattice bars and conductors in
+        front of the black vanish, as they do from the dark pixels) and
+        grouped; compact groups whose median is dark grey (a star or a lit
+        window is bright all over) with white parts inside are candidates.
+        A bright frame is one group, far bigger than a sign, and gives none.
+        """
+        s = self.settings
+        min_px = max(3, s.fast_small_min_px // 2)
+        max_px = s.max_size_frac * min(half.shape) * 0.75
+        lit = cv2.morphologyEx(
+            (low > thr).astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8)
+        )
+        _, _, stats, _ = cv2.connectedComponentsWithStats(lit, connectivity=8)
+        boxes = []
+        for bx, by, bw, bh, area in stats[1:].tolist():
+            if not min_px <= max(bw, bh) <= max_px or max(bw, bh) > 3 * min(bw, bh):
+                continue
+            if area < 0.5 * bw * bh:
+                continue  # not a disc's outline
+            level = float(thr[by + bh // 2, bx + bw // 2])
+            # The disc's paint is dark grey and its white parts are bright.
+            if float(np.median(half[by : by + bh, bx : bx + bw])) > level + s.fast_min_range:
+                continue
+            if int(high[by : by + bh, bx : bx + bw].max()) - level < 2 * s.fast_min_range:
+                continue
+            boxes.append((bx, by, bw, bh))
+        return boxes
 
     def dark_threshold(self, low: np.ndarray) -> np.ndarray:
         """(H, W) float32 grey level at or below which a pixel of ``low`` may be a sign's black.

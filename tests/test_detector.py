@@ -226,3 +226,26 @@ def test_a_sign_in_front_of_a_bright_part_is_a_candidate_despite_darker_regions_
 
     assert candidate_at_sign(DetectorSettings())
     assert not candidate_at_sign(DetectorSettings(fast_local_tiles=(0, 0)))
+
+
+def test_a_sign_in_front_of_a_black_sky_is_a_candidate():
+    """Darker than the paint all round (a night sky), the disc is found as a grey blob."""
+    frame = np.full((480, 640), 4, np.uint8)
+    face = render_sign_png("0110", 60).astype(float)
+    disc = np.round(35 + face * (200 - 35) / 255)
+    yy, xx = np.mgrid[:60, :60]
+    outside = np.hypot(xx - 29.5, yy - 29.5) > 30
+    frame[300:360, 400:460] = np.where(outside, frame[300:360, 400:460], disc)
+    frame[352:358, 300:560] = 110  # a lattice bar in front of the disc's lower rim
+    frame[100:106, 50:600] = 110
+    center = (430, 330)
+
+    def candidate_at_sign(settings: DetectorSettings) -> bool:
+        rois = SignDetector(settings=settings).candidate_rois(frame)
+        return any(
+            x <= center[0] < x + w and y <= center[1] < y + h and 30 <= size <= 120
+            for x, y, w, h, size in rois
+        )
+
+    assert candidate_at_sign(DetectorSettings())
+    assert not candidate_at_sign(DetectorSettings(fast_grey_discs=False))
