@@ -22,7 +22,7 @@ from signpose.estimator.camera import pinhole_camera
 from signpose.cli import main as cli_main
 from signpose.core.errors import InputError, OutputError
 from signpose.io import mcap as mcap_io
-from signpose.io.camera_file import write_camera_info
+from signpose.io.camera_file import load_camera, write_camera_info
 from signpose.io.frames_csv import FrameStamp, write_frames_csv
 from signpose.io.observations import read_observations
 from signpose.io.sources import open_source
@@ -102,9 +102,22 @@ def test_estimate_cli_exits_2_with_one_line(tmp_path, capsys):
 
 # --------------------------------------------------------------------------- fuzzing
 
+
+def _opencv_yaml() -> bytes:
+    """An OpenCV FileStorage camera file as cv2 writes it (the fuzzers' seed)."""
+    fs = cv2.FileStorage(".yml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("camera_matrix", np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]))
+    fs.write("distortion_coefficients", np.array([[0.1, -0.02, 0.0, 0.0, 0.01]]))
+    fs.write("fisheye_model", 0)
+    return fs.releaseAndGetString().encode()
+
+
 _SEEDS = {
     "observations": (read_observations, GOOD_LINE.encode() + b"\n"),
     "tum": (read_tum, b"0.0 1 2 3 0 0 0 1\n1.0 1 2 3 0 0 0 1\n"),
+    "opencv_camera": (load_camera, _opencv_yaml()),
 }
 _TOKENS = [b"[", b"]", b"{", b"}", b"Infinity", b"-Infinity", b"NaN", b"1e308", b"1e999", b"\xff"]
 _TOKENS += [b"\x00", b'"', b":", b",", b"\n", b"-1", b"99999999999999999999999", b"true"]

@@ -282,15 +282,26 @@ def _from_filestorage(fs: cv2.FileStorage, path: Path) -> CameraModel:
     return CameraModel(sizes[0], sizes[1], K, dist, _fs_model(fs, path), path.stem)
 
 
-def _open_filestorage(text: str, path: Path, what: str) -> cv2.FileStorage:
+def _read_filestorage(text: str, path: Path, what: str, source_format: str) -> CameraFile:
+    """The camera of an OpenCV FileStorage text, read with ``cv2.FileStorage``.
+
+    cv2 raises ``cv2.error`` (or a SystemError) for damaged files, on opening or
+    on reading a node of the wrong kind: either is the file's fault, so one line.
+    """
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         opened = fs.isOpened()
-    except Exception:  # noqa: BLE001 - cv2 raises cv2.error or SystemError for bad files
+    except Exception:  # noqa: BLE001 - see above
         opened = False
     if not opened:
         raise _fail(path, f"not a readable OpenCV FileStorage {what} file")
-    return fs
+    try:
+        return CameraFile(_from_filestorage(fs, path), source_format)
+    except (cv2.error, SystemError) as exc:
+        where = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise _fail(path, f"not a valid OpenCV FileStorage {what} file ({where[:80]})") from None
+    finally:
+        fs.release()
 
 
 # --------------------------------------------------------------------------- reading
@@ -334,21 +345,13 @@ def _read_yaml_directive_file(text: str, p: Path) -> CameraFile:
         d = None
     if isinstance(d, dict) and _looks_like_kalibr(d):
         return CameraFile(_from_kalibr(d, p), KALIBR)
-    fs = _open_filestorage(text, p, "YAML")
-    try:
-        return CameraFile(_from_filestorage(fs, p), OPENCV)
-    finally:
-        fs.release()
+    return _read_filestorage(text, p, "YAML", OPENCV)
 
 
 def _read(p: Path, text: str) -> CameraFile:
     head = text.lstrip()
     if head.startswith(("<?xml", "<opencv_storage")):
-        fs = _open_filestorage(text, p, "XML")
-        try:
-            return CameraFile(_from_filestorage(fs, p), OPENCV_XML)
-        finally:
-            fs.release()
+        return _read_filestorage(text, p, "XML", OPENCV_XML)
     if head.startswith("%YAML"):
         return _read_yaml_directive_file(text, p)
     d = _safe_yaml(text, p)
