@@ -149,7 +149,7 @@ def method_numbers(m, truth: Trajectory) -> dict:
 FAULT_CONFIGS = {
     "issue12": EstimatorSettings(methods=("pnp", "smoothed")),
     "gnc": EstimatorSettings(methods=("pnp", "smoothed"), final_kernel="gnc"),
-    "before": EstimatorSettings(
+    "huber": EstimatorSettings(  # as before issue 12: no innovation test, no final kernel
         methods=("pnp", "smoothed"), outliers=OutlierSettings(rounds=0), final_kernel="huber"
     ),
 }
