@@ -262,6 +262,10 @@ class DecoderSettings:
             (0.4: about 66 degrees off the sign's normal).
         min_fill: least disc diameter as a fraction of the crop's larger side.
         max_black_frac: a black slot's samples stay below this white fraction.
+        black_slot_level: the mean white fraction of a black slot's middle
+            samples stays below this: a dark member over a white slot reads
+            a flat gray just above the print's black (0.08-0.1 seen), which
+            must erase the slot rather than read 0.
         min_white_frac: a white slot's samples stay above this white fraction.
         edge_margin_px: the sign's rim must stay this far inside the crop [px].
         thresholds: binarisations tried in turn until one decodes: "mean"
@@ -283,6 +287,7 @@ class DecoderSettings:
     min_axis_ratio: float = 0.4
     min_fill: float = 0.25
     max_black_frac: float = 0.25
+    black_slot_level: float = 0.07
     min_white_frac: float = 0.55
     edge_margin_px: float = 0.0
     thresholds: tuple[str, ...] = ("mean", "otsu", "high", "adaptive", "open")
@@ -498,7 +503,8 @@ def _slot_is_clear(row: list[float], bit: bool, settings: DecoderSettings) -> bo
     centre = row[_N_OFFSETS // 2]
     if bit:
         return centre >= hi and min(row[1:-1]) >= hi - 0.1 and sum(row) / _N_OFFSETS >= hi
-    return centre <= lo and max(row) <= lo + 0.1
+    middle = sum(row[1:-1]) / (_N_OFFSETS - 2)
+    return centre <= lo and max(row) <= lo + 0.1 and middle <= settings.black_slot_level
 
 
 def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSettings) -> _Reading:
