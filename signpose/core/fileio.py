@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import tempfile
 from collections.abc import Iterator
@@ -10,6 +11,34 @@ from pathlib import Path
 from typing import IO
 
 from signpose.core.errors import OutputError
+
+# What the user can do about each filesystem error an output meets.
+_OUTPUT_HINTS = {
+    errno.ENOSPC: "free space on that disk or choose another --out",
+    errno.EDQUOT: "free space within your quota or choose another --out",
+    errno.EFBIG: "the file is larger than that filesystem allows; choose another --out",
+    errno.EROFS: "that filesystem is read-only; choose another --out",
+    errno.EACCES: "you may not write there; choose another --out",
+    errno.EPERM: "you may not write there; choose another --out",
+    errno.EISDIR: "a folder is in the way; name a file or remove the folder",
+    errno.EIO: "the disk reported an I/O error; check it or choose another --out",
+}
+
+# Errors raised while the caller writes into the handle that are the output's
+# fault (an OSError with another errno, e.g. reading an input, passes through).
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EIO})
+
+
+def output_error(target: Path, exc: OSError) -> OutputError:
+    """One-line OutputError for ``exc`` naming the final path and what to fix."""
+    reason = exc.strerror or type(exc).__name__
+    hint = _OUTPUT_HINTS.get(exc.errno, "check that folder or choose another --out")
+    return OutputError(f"{target}: cannot write ({reason}); {hint}")
+
+
+def _refuse_folder(target: Path) -> None:
+    if target.is_dir():
+        raise OutputError(f"{target}: is a folder; name a file inside it or remove the folder")
 
 
 def umask_mode(directory: bool = False) -> int:
@@ -42,22 +71,42 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator
     removed, so ``path`` is either its old content or the complete new one.
     """
     target = Path(path)
+    _refuse_folder(target)
     parent = target.parent if str(target.parent) else Path(".")
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent)
     except OSError as exc:
-        raise OutputError(f"{target}: cannot write here ({exc.strerror})") from None
+        raise output_error(target, exc) from None
     try:
         os.chmod(tmp, umask_mode())
         with os.fdopen(fd, mode, **kwargs) as handle:
-            yield handle
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, target)
+            try:
+                yield handle
+            except OSError as exc:
+                if exc.errno in _WRITE_ERRNOS:
+                    raise output_error(target, exc) from None
+                raise
+            _finish(handle, target)
+        _replace(tmp, target)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _finish(handle: IO, target: Path) -> None:
+    try:
+        handle.flush()
+        os.fsync(handle.fileno())
+    except OSError as exc:
+        raise output_error(target, exc) from None
+
+
+def _replace(tmp: str | os.PathLike, target: Path) -> None:
+    try:
+        os.replace(tmp, target)
+    except OSError as exc:
+        raise output_error(target, exc) from None
 
 
 def atomic_path(path: str | os.PathLike) -> contextlib.AbstractContextManager[Path]:
@@ -72,19 +121,25 @@ def atomic_path(path: str | os.PathLike) -> contextlib.AbstractContextManager[Pa
 
 @contextlib.contextmanager
 def _atomic_path(target: Path) -> Iterator[Path]:
+    _refuse_folder(target)
     parent = target.parent if str(target.parent) else Path(".")
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=target.suffix, dir=parent)
     except OSError as exc:
-        raise OutputError(f"{target}: cannot write here ({exc.strerror})") from None
+        raise output_error(target, exc) from None
     os.close(fd)
     os.chmod(tmp, umask_mode())
     tmp_path = Path(tmp)
     try:
-        yield tmp_path
+        try:
+            yield tmp_path
+        except OSError as exc:
+            if exc.errno in _WRITE_ERRNOS:
+                raise output_error(target, exc) from None
+            raise
         if not tmp_path.exists() or tmp_path.stat().st_size == 0:
             raise OutputError(f"{target}: writer produced no data")
-        os.replace(tmp_path, target)
+        _replace(tmp_path, target)
     except BaseException:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
