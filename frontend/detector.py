@@ -114,6 +114,9 @@ class DetectorSettings:
         fast_local_raise: the local threshold is at most this much above the
             frame's [grey levels] (a sign's black stays dark; busy mid-grey
             texture does not become candidates).
+        fast_dark_mass_share: the local threshold and the grey discs are used
+            only when pixels at the frame's dark level cover more than this
+            share of it (signs' paint alone covers a few per cent).
         fast_grey_discs: also take compact grey blobs with white parts inside,
             standing out of pixels at most ``fast_black_margin`` above the
             darkest, as candidates (a sign in front of a black sky, darker
@@ -147,6 +150,7 @@ class DetectorSettings:
     fast_dark_margin: float = 25.0
     fast_local_tiles: tuple[int, int] = (8, 6)
     fast_local_raise: float = 20.0
+    fast_dark_mass_share: float = 0.08
     fast_grey_discs: bool = True
     fast_black_margin: float = 10.0
     fast_min_range: int = 50
@@ -438,7 +442,7 @@ class SignDetector:
         half = cv2.resize(gray, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
         low = cv2.erode(half, np.ones((3, 3), np.uint8))
         high = cv2.dilate(half, np.ones((7, 7), np.uint8))
-        thr = self.dark_threshold(low)
+        thr, dark_mass = self.dark_threshold(low)
         dark = (low <= thr).astype(np.uint8)
         rois: list[tuple[int, int, int, int, float]] = []
         # Opening removes conductors and thin bars, also where they touch a
@@ -456,7 +460,7 @@ class SignDetector:
                 if int(high[by : by + bh, bx : bx + bw].max()) - dark_thr < s.fast_min_range:
                     continue
                 self._add_roi(rois, (bx, by, bw, bh), (h, w))
-        if s.fast_grey_discs:
+        if s.fast_grey_discs and dark_mass:
             # A black sky is darker than the paint: the disc stands out of the
             # pixels barely above the darkest.
             black_thr = thr - s.fast_dark_margin + s.fast_black_margin
@@ -517,31 +521,32 @@ class SignDetector:
             boxes.append((bx, by, bw, bh))
         return boxes
 
-    def dark_threshold(self, low: np.ndarray) -> np.ndarray:
-        """(H, W) float32 grey level at or below which a pixel of ``low`` may be a sign's black.
+    def dark_threshold(self, low: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Grey level at or below which a pixel of ``low`` may be a sign's black.
 
-        The frame's 0.5th percentile + ``fast_dark_margin``, raised (by at most
-        ``fast_local_raise``) where a tile's own 0.5th percentile is brighter:
-        a photograph's dark region then no longer hides the signs in front of
-        its bright parts.
+        The frame's 0.5th percentile + ``fast_dark_margin``. When pixels that
+        dark cover more than ``fast_dark_mass_share`` of the frame, the darkest
+        thing in view is not (only) signs' paint but a photograph's shadow or
+        a black sky: the threshold is then raised (by at most
+        ``fast_local_raise``) where a tile's own 0.5th percentile is brighter,
+        so that the signs in front of the frame's bright parts stay candidates.
+
+        Returns:
+            ((H, W) float32 threshold, whether the frame has such a dark mass).
         """
         s = self.settings
-        frame_thr = float(np.percentile(low[::4, ::4], 0.5)) + s.fast_dark_margin
+        sub = low[::4, ::4]
+        frame_thr = float(np.percentile(sub, 0.5)) + s.fast_dark_margin
         nx, ny = s.fast_local_tiles
-        if nx <= 0 or ny <= 0:
-            return np.full(low.shape, frame_thr, np.float32)
-        sub = low[::2, ::2]
-        ys = np.linspace(0, sub.shape[0], ny + 1).astype(int)
-        xs = np.linspace(0, sub.shape[1], nx + 1).astype(int)
-        tiles = np.array(
-            [
-                [np.percentile(sub[y0:y1, x0:x1], 0.5) for x0, x1 in zip(xs, xs[1:], strict=False)]
-                for y0, y1 in zip(ys, ys[1:], strict=False)
-            ],
-            np.float32,
-        )
-        local = np.clip(tiles + s.fast_dark_margin, frame_thr, frame_thr + s.fast_local_raise)
-        return cv2.resize(local, (low.shape[1], low.shape[0]), interpolation=cv2.INTER_LINEAR)
+        dark_mass = float(np.mean(sub <= frame_thr)) > s.fast_dark_mass_share
+        if not dark_mass or nx <= 0 or ny <= 0:
+            return np.full(low.shape, frame_thr, np.float32), dark_mass
+        th, tw = sub.shape[0] // ny, sub.shape[1] // nx
+        tiles = sub[: ny * th, : nx * tw].reshape(ny, th, nx, tw).transpose(0, 2, 1, 3)
+        tile_p = np.percentile(tiles.reshape(ny, nx, th * tw), 0.5, axis=-1).astype(np.float32)
+        local = np.clip(tile_p + s.fast_dark_margin, frame_thr, frame_thr + s.fast_local_raise)
+        size = (low.shape[1], low.shape[0])
+        return cv2.resize(local, size, interpolation=cv2.INTER_LINEAR), dark_mass
 
     def _fast_raw(self, gray: np.ndarray) -> np.ndarray:
         s = self.settings
