@@ -90,11 +90,25 @@ def pixel_from_cam_point(camera: CameraModel, cam_points: np.ndarray) -> np.ndar
         return np.zeros((0, 2))
     rvec = np.zeros(3)
     tvec = np.zeros(3)
+    skew = float(camera.K[0, 1])
     if camera.model == EQUIDISTANT:
-        out, _ = cv2.fisheye.projectPoints(pts, rvec, tvec, camera.K, camera.dist[:4])
-    else:
-        out, _ = cv2.projectPoints(pts, rvec, tvec, camera.K, camera.dist)
-    return out.reshape(-1, 2)
+        out, _ = cv2.fisheye.projectPoints(
+            pts, rvec, tvec, _without_skew(camera.K), camera.dist[:4], alpha=skew / camera.fx
+        )
+        return out.reshape(-1, 2)
+    # cv2.projectPoints reads only fx, fy, cx, cy: add the skew term s * y_d.
+    out, _ = cv2.projectPoints(pts, rvec, tvec, _without_skew(camera.K), camera.dist)
+    px = out.reshape(-1, 2)
+    if skew != 0.0:
+        px[:, 0] += skew * (px[:, 1] - camera.cy) / camera.fy
+    return px
+
+
+def _without_skew(K: np.ndarray) -> np.ndarray:
+    """K with K[0, 1] = 0 (the part of K that OpenCV's distortion functions read)."""
+    K0 = np.array(K, dtype=np.float64)
+    K0[0, 1] = 0.0
+    return K0
 
 
 def pixel_from_world_point(
@@ -125,21 +139,31 @@ def pixel_from_world_point(
 def undistort_px(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
     """Raw pixels to the ideal pinhole image with the same K (``cv2.undistortPoints``).
 
+    The skew K[0, 1] is part of the lens model on both sides, as in
+    ``pixel_from_cam_point``: raw u = fx * x_d + s * y_d + cx. OpenCV's
+    undistortion reads only fx, fy, cx, cy of its input matrix, so the skew term
+    is taken off the raw pixels first; the output uses the full K.
+
     Args:
         pixels: (N, 2) raw pixel coordinates.
 
     Returns:
         (N, 2) pixel coordinates as an undistorted pinhole camera with
-        intrinsics ``camera.K`` would see them.
+        intrinsics ``camera.K`` (skew included) would see them.
     """
     pts = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
     if len(pts) == 0 or not camera.has_distortion:
         return pts.reshape(-1, 2).copy()
+    skew = float(camera.K[0, 1])
+    if skew != 0.0:
+        pts = pts.copy()
+        pts[:, 0, 0] -= skew * (pts[:, 0, 1] - camera.cy) / camera.fy
+    K0 = _without_skew(camera.K)
     if camera.model == EQUIDISTANT:
-        out = cv2.fisheye.undistortPoints(pts, camera.K, camera.dist[:4], P=camera.K)
+        out = cv2.fisheye.undistortPoints(pts, K0, camera.dist[:4], P=camera.K)
     else:
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
-        out = cv2.undistortPointsIter(pts, camera.K, camera.dist, None, camera.K, crit)
+        out = cv2.undistortPointsIter(pts, K0, camera.dist, None, camera.K, crit)
     return out.reshape(-1, 2)
 
 
