@@ -11,26 +11,39 @@ folder for reruns), then, in one process and one after the other:
 Prints seconds, ms per frame and the ratio to ``decode_only``, and whether
 the ``observations.jsonl`` of every worker count are byte-identical.
 
+``--against REV`` also runs ``signpose/pipeline.py`` and ``frontend/detector.py``
+as they were at git revision REV (``git show``; the rest of the package is
+today's, so the decoder is the same), interleaved with today's, for a
+before/after in one run on a shared machine. It works for revisions whose
+``observe`` takes (source, map, camera, settings, progress, out_path).
+
     .venv/bin/python scripts/bench_observe.py --frames 120 --workers 1 2 --repeat 2 [--json PATH]
+    .venv/bin/python scripts/bench_observe.py --workers 1 2 --repeat 3 --against ae0faeb
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
+import importlib.util
 import json
 import math
 import os
+import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from types import ModuleType
 
+from signpose.frontend import detector
 from signpose.maps.loader import bundled_map_path, load_map
 
+from signpose import pipeline
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.io.sources import open_source
-from signpose.pipeline import ObserveSettings, observe
 from signpose.sim.flight import SimSettings, simulate, simulated_camera
 
 BENCH_SEED = 7
@@ -48,6 +61,35 @@ def _flight(work: Path, frames: int, width: int, height: int) -> Path:
     with atomic_write(stamp) as f:
         json.dump(key, f)
     return Path(sim.frames_path)
+
+
+def _module_at(rev: str, path: str, name: str, work: Path) -> ModuleType:
+    """The file ``path`` of git revision ``rev`` loaded as module ``name``."""
+    root = Path(__file__).resolve().parent.parent
+    text = subprocess.run(
+        ["git", "show", f"{rev}:{path}"], cwd=root, check=True, capture_output=True, text=True
+    ).stdout
+    file = work / f"{name}.py"
+    file.write_text(text, encoding="utf-8")
+    spec = importlib.util.spec_from_file_location(name, file)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while it loads
+    with _detector_is(module if name.endswith("detector") else None):
+        spec.loader.exec_module(module)
+    return module
+
+
+@contextlib.contextmanager
+def _detector_is(module: ModuleType | None) -> Iterator[None]:
+    """``signpose.frontend.detector`` resolves to ``module`` meanwhile (None: today's)."""
+    if module is None:
+        yield
+        return
+    sys.modules["signpose.frontend.detector"] = module
+    try:
+        yield
+    finally:
+        sys.modules["signpose.frontend.detector"] = detector
 
 
 def _decode_only(video: Path) -> float:
@@ -68,38 +110,51 @@ def main(argv: list[str] | None = None) -> int:
         "--work", type=Path, default=Path(tempfile.gettempdir()) / "signpose-bench-observe"
     )
     p.add_argument("--json", type=Path, help="write the numbers here")
+    p.add_argument("--against", metavar="REV", help="also time the pipeline+detector of REV")
     args = p.parse_args(argv)
     work = ensure_dir(args.work)
+    versions = {"observe": (pipeline, None)}
+    if args.against:
+        old_detector = _module_at(args.against, "frontend/detector.py", "_against_detector", work)
+        with _detector_is(old_detector):
+            old = _module_at(args.against, "signpose/pipeline.py", "_against_pipeline", work)
+        versions[args.against] = (old, old_detector)
     video = _flight(work, args.frames, args.width, args.height)
     sign_map = load_map(bundled_map_path())
     camera = simulated_camera(SimSettings(width=args.width, height=args.height))
     # The machine is shared: every configuration runs --repeat times, interleaved,
     # and the fastest run of each counts.
     times: dict[str, float] = {}
-    digests: set[str] = set()
+    digests: dict[str, set[str]] = {name: set() for name in versions}
     for _ in range(args.repeat):
         times["decode_only"] = min(times.get("decode_only", math.inf), _decode_only(video))
         for n in args.workers:
-            out = work / f"observations_w{n}.jsonl"
-            t0 = time.perf_counter()
-            observe(
-                open_source(video),
-                sign_map,
-                camera,
-                ObserveSettings(workers=n),
-                progress=False,
-                out_path=out,
-            )
-            key = f"observe_w{n}"
-            times[key] = min(times.get(key, math.inf), time.perf_counter() - t0)
-            digests.add(hashlib.sha256(out.read_bytes()).hexdigest())
+            for name, (module, its_detector) in versions.items():
+                out = work / f"{name}_w{n}.jsonl"
+                t0 = time.perf_counter()
+                with _detector_is(its_detector):
+                    module.observe(
+                        open_source(video),
+                        sign_map,
+                        camera,
+                        module.ObserveSettings(workers=n),
+                        False,
+                        out,
+                    )
+                key = f"{name}_w{n}"
+                times[key] = min(times.get(key, math.inf), time.perf_counter() - t0)
+                digests[name].add(hashlib.sha256(out.read_bytes()).hexdigest())
     base = times["decode_only"]
     print(f"{args.frames} frames {args.width}x{args.height} on {os.cpu_count()} cores")
-    print(f"{'run':14s} {'total [s]':>10s} {'ms/frame':>9s} {'/ decode_only':>14s}")
+    print(f"{'run':18s} {'total [s]':>10s} {'ms/frame':>9s} {'/ decode_only':>14s}")
     for k, v in times.items():
-        print(f"{k:14s} {v:10.2f} {1000 * v / args.frames:9.1f} {v / base:14.2f}")
-    identical = len(digests) == 1
-    print(f"observations.jsonl identical over {args.repeat} x workers {args.workers}: {identical}")
+        print(f"{k:18s} {v:10.2f} {1000 * v / args.frames:9.1f} {v / base:14.2f}")
+    for name, found in digests.items():
+        print(
+            f"{name}: observations.jsonl identical over {args.repeat} x workers "
+            f"{args.workers}: {len(found) == 1}"
+        )
+    identical = len(digests["observe"]) == 1
     if args.json:
         data = {
             "frames": args.frames,
@@ -107,7 +162,13 @@ def main(argv: list[str] | None = None) -> int:
             "times_s": {k: round(v, 3) for k, v in times.items()},
             "ratio_to_decode_only": {k: round(v / base, 3) for k, v in times.items()},
             "identical": identical,
-            "sha256": sorted(digests),
+            "sha256": sorted(digests["observe"]),
+            "against": {
+                "rev": args.against,
+                "identical": len(digests[args.against]) == 1,
+            }
+            if args.against
+            else None,
             "cpu_count": os.cpu_count(),
         }
         with atomic_write(args.json) as f:
