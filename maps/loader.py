@@ -17,8 +17,17 @@ from signpose.frontend.sign import ALL_CODES, sign_keypoints
 
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write
+from signpose.core.nesting import check_nesting
 
 ORTHOGONALITY_TOL_DEG = 1.0
+# A map holds at most 16 signs (one per code), a few kB; anything far larger is
+# not a map and PyYAML would take minutes and gigabytes on it (issue 15 #21).
+MAX_MAP_BYTES = 1_000_000
+# |coordinate| of a sign centre [m]: 10,000 km, beyond any site frame.
+MAX_COORDINATE_M = 1e7
+# Sign diameter and survey sigma [m]: above this the number is a unit mistake.
+MAX_LENGTH_M = 100.0
+TOP_LEVEL_KEYS = ("frame", "signs")
 
 
 @dataclass(frozen=True)
@@ -129,10 +138,17 @@ def _vector(path: str, where: str, field: str, value, *, nonzero: bool) -> np.nd
     if not np.all(np.isfinite(v)):
         raise InputError(f"{path}: {where}: field '{field}' has a non-finite number")
     if nonzero:
-        n = float(np.linalg.norm(v))
-        if n < 1e-9:
+        largest = float(np.max(np.abs(v)))
+        if largest < 1e-9:
             raise InputError(f"{path}: {where}: field '{field}' is a zero vector")
-        v = v / n
+        # Scaled by its largest component first: the norm of [1e308, 0, 1e308] overflows.
+        v = v / largest
+        return v / np.linalg.norm(v)
+    if np.max(np.abs(v)) > MAX_COORDINATE_M:
+        raise InputError(
+            f"{path}: {where}: field '{field}' is beyond {MAX_COORDINATE_M:g} m; "
+            "give coordinates in metres in the site frame"
+        )
     return v
 
 
@@ -143,6 +159,11 @@ def _positive(path: str, where: str, field: str, value) -> float:
         raise InputError(f"{path}: {where}: field '{field}' must be a number") from None
     if not math.isfinite(x) or x <= 0:
         raise InputError(f"{path}: {where}: field '{field}' must be a finite number > 0")
+    if x > MAX_LENGTH_M:
+        raise InputError(
+            f"{path}: {where}: field '{field}' is {x:g} m, above {MAX_LENGTH_M:g} m; "
+            "give it in metres"
+        )
     return x
 
 
@@ -150,6 +171,12 @@ def parse_map(data, source: str = "<map>") -> SignMap:
     """Validate a map already parsed from YAML; raise InputError on any problem."""
     if not isinstance(data, dict):
         raise InputError(f"{source}: not a sign map (expected keys 'frame' and 'signs')")
+    unknown_top = sorted(str(k) for k in data if k not in TOP_LEVEL_KEYS)
+    if unknown_top:
+        raise InputError(
+            f"{source}: unknown top-level key '{unknown_top[0]}' (a map has only "
+            f"{' and '.join(TOP_LEVEL_KEYS)})"
+        )
     frame = data.get("frame")
     if not isinstance(frame, str) or not frame:
         raise InputError(f"{source}: missing field 'frame' (the world frame's name)")
@@ -211,18 +238,36 @@ def load_map(path: str | Path) -> SignMap:
     """Read and validate a map file; raise InputError naming the file on any problem."""
     p = Path(path)
     try:
+        size = p.stat().st_size
+        if size > MAX_MAP_BYTES:
+            raise InputError(
+                f"{p}: {size} bytes is not a sign map (at most {MAX_MAP_BYTES} bytes: "
+                "16 signs take a few kB); pass the map YAML"
+            )
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{p}: map file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a folder; pass the map YAML file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{p}: cannot read map file ({exc})") from None
+    check_nesting(text, p)
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        line = getattr(getattr(exc, "problem_mark", None), "line", None)
-        at = f" at line {line + 1}" if line is not None else ""
-        raise InputError(f"{p}: not valid YAML{at}; fix the map syntax") from None
+        raise InputError(_yaml_problem(p, exc)) from None
     return parse_map(data, str(p))
+
+
+def _yaml_problem(p: Path, exc: yaml.YAMLError) -> str:
+    """One line for a map that safe_load refused: a tag it will not run, or bad syntax."""
+    line = getattr(getattr(exc, "problem_mark", None), "line", None)
+    at = f" at line {line + 1}" if line is not None else ""
+    problem = str(getattr(exc, "problem", "") or "")
+    if isinstance(exc, yaml.constructor.ConstructorError) and "tag" in problem:
+        tag = problem.split("tag", 1)[1].strip(" '").replace("tag:yaml.org,2002:", "!!")
+        return f"{p}: the tag {tag}{at} is not allowed (a map is plain YAML: no tags); remove it"
+    return f"{p}: not valid YAML{at}; fix the map syntax"
 
 
 def map_to_dict(sign_map: SignMap) -> dict:

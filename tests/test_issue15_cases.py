@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import errno
 import os
+import time
 
+import numpy as np
 import pytest
+from signpose.maps.loader import MAX_MAP_BYTES, load_map
 
 from signpose.core import fileio
-from signpose.core.errors import OutputError
+from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_path, atomic_write
 
 
@@ -85,3 +88,51 @@ def test_an_oserror_that_is_not_the_outputs_passes_through(tmp_path):
     with pytest.raises(FileNotFoundError), atomic_write(tmp_path / "out.txt"):
         (tmp_path / "missing-input.txt").read_text()
     assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- #4, #9, #21 maps
+
+MAP_HEAD = "frame: site\nsigns:\n"
+ONE_SIGN = (
+    '- {code: "0101", center_m: [0, 0, 10], normal: [0, 1, 0], up: [0, 0, 1], '
+    "diameter_m: 0.8, sigma_m: 0.01}\n"
+)
+
+
+@pytest.mark.parametrize(
+    "text, expect",
+    [
+        (MAP_HEAD + "- " + "[" * 5000 + "]" * 5000 + "\n", "nested deeper than 64"),
+        ("frame: site\nsigns: !!python/object/apply:os.system [echo]\n", "tag !!python/object"),
+        (MAP_HEAD + ONE_SIGN + "extra: 1\n", "unknown top-level key 'extra'"),
+        (MAP_HEAD + ONE_SIGN.replace("[0, 0, 10]", "[1e300, 0, 10]"), "beyond 1e+07 m"),
+        (MAP_HEAD + ONE_SIGN.replace("diameter_m: 0.8", "diameter_m: 1e308"), "above 100 m"),
+        (MAP_HEAD + ONE_SIGN.replace("normal: [0, 1, 0]", "normal: [0, 1e-300, 0]"), "zero"),
+    ],
+)
+def test_bad_maps_are_one_line_naming_the_file(tmp_path, text, expect):
+    path = tmp_path / "map.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError) as exc:
+        load_map(path)
+    _one_line(exc, path, expect)
+
+
+def test_huge_components_of_a_direction_are_normalised_not_nan(tmp_path):
+    path = tmp_path / "map.yaml"
+    path.write_text(MAP_HEAD + ONE_SIGN.replace("up: [0, 0, 1]", "up: [1e308, 0, 1e308]"))
+    sign = load_map(path).signs[0]
+    assert np.allclose(sign.up, [np.sqrt(0.5), 0.0, np.sqrt(0.5)], atol=1e-12)
+    assert np.allclose(sign.world_R_sign() @ sign.world_R_sign().T, np.eye(3), atol=1e-12)
+
+
+def test_a_map_over_the_size_limit_is_refused_at_once(tmp_path):
+    path = tmp_path / "map.yaml"
+    with path.open("w") as f:
+        f.write(MAP_HEAD)
+        f.write(ONE_SIGN * (MAX_MAP_BYTES // len(ONE_SIGN) + 1))
+    t0 = time.perf_counter()
+    with pytest.raises(InputError) as exc:
+        load_map(path)
+    assert time.perf_counter() - t0 < 1.0
+    _one_line(exc, path, f"at most {MAX_MAP_BYTES} bytes")
