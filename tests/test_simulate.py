@@ -346,7 +346,7 @@ def test_frame_writer_leaves_nothing_on_failure(tmp_path, fmt):
 def test_cli_simulate(tmp_path, capsys):
     out = tmp_path / "sim"
     args = ["simulate", "--out", str(out), "--frames", "2", "--width", "320", "--height", "180"]
-    assert main(args + ["--format", "png", "--quiet", "--dirt", "--occlusion"]) == 0
+    assert main(args + ["--format", "png", "--dirt", "--occlusion"]) == 0
     printed = capsys.readouterr().out
     for name in ("frames", "camera.yaml", "groundtruth.tum", "boxes.jsonl", "map.yaml"):
         assert str(out / name) in printed
