@@ -339,7 +339,12 @@ def check_inputs(
                 f"{camera.width}x{camera.height}; pass the calibration of this camera"
             )
     seen = {s.code for f in frames for s in f.signs}
-    if seen and not seen & set(sign_map.codes):
+    if not seen:
+        raise InputError(
+            f"{obs_source}: no sign was decoded in any of its {len(frames)} frames; "
+            "nothing to estimate from (check the input, --codes and the detector)"
+        )
+    if not seen & set(sign_map.codes):
         src = sign_map.source or "map"
         raise InputError(
             f"{src}: the map shares no code with the observations in {obs_source} "

@@ -8,16 +8,20 @@ traceback or a silent result.
 from __future__ import annotations
 
 import errno
+import json
 import os
 import time
 
 import numpy as np
 import pytest
-from signpose.maps.loader import MAX_MAP_BYTES, load_map
+from signpose.estimator.camera import pinhole_camera
+from signpose.maps.loader import MAX_MAP_BYTES, bundled_map_path, load_map
 
+from signpose.cli import main as cli_main
 from signpose.core import fileio
 from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_path, atomic_write
+from signpose.io.camera_file import write_camera_info
 
 
 def _one_line(exc: pytest.ExceptionInfo, path, *parts: str) -> None:
@@ -136,3 +140,27 @@ def test_a_map_over_the_size_limit_is_refused_at_once(tmp_path):
         load_map(path)
     assert time.perf_counter() - t0 < 1.0
     _one_line(exc, path, f"at most {MAX_MAP_BYTES} bytes")
+
+
+# --------------------------------------------------------------------------- #12 estimate
+
+
+def test_estimate_on_observations_without_any_sign_exits_2(tmp_path, capsys):
+    path = tmp_path / "observations.jsonl"
+    path.write_text(
+        "".join(
+            json.dumps(
+                {"frame": i, "stamp_ns": i * 33_000_000, "image_size": [640, 360], "signs": []}
+            )
+            + "\n"
+            for i in range(5)
+        )
+    )
+    camera = tmp_path / "camera.yaml"
+    write_camera_info(camera, pinhole_camera(640, 360))
+    argv = ["estimate", str(path), "--map", str(bundled_map_path()), "--camera", str(camera)]
+    code = cli_main([*argv, "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err.count("\n") == 0 and str(path) in err and "no sign was decoded" in err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
