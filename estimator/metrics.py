@@ -5,10 +5,12 @@ by timestamp (nearest ground-truth stamp within ``max_dt_s``, one to one, as
 evo's ``associate_trajectories``). Positions are camera centres, world frame [m].
 
 Definitions:
-    * ``mae_xyz``: per-axis mean absolute position error (the paper's Table 4).
-    * ``ate_rmse``: sqrt(mean ||p_est - p_gt||^2) without alignment, and
-      ``ate_rmse_aligned`` after the rigid SE(3) alignment (Umeyama, no scale)
+    * ``mae_xyz_m``: per-axis mean absolute position error (the paper's Table 4).
+    * ``ate_rmse_m``: sqrt(mean ||p_est - p_gt||^2) without alignment, and
+      ``ate_rmse_aligned_m`` after the rigid SE(3) alignment (Umeyama, no scale)
       of the estimated positions onto the ground truth (evo_ape -a).
+    * ``rot_rmse_deg``: RMS of the angle of ``world_R_gt^T world_R_est`` (no
+      alignment), the rotation error that errors.png plots.
     * ``rpe_trans_per_m``: relative pose error, translation part, with the
       step measured in metres travelled, as ``evo_rpe tum GT EST --delta 1
       --delta_unit m --pairs_from_reference`` (consecutive pairs; note evo's
@@ -21,13 +23,19 @@ Definitions:
       taken. Reported as the RMSE over pairs divided by ``delta_m``, so it
       reads as metres of drift per metre travelled.
     * ``coverage``: associated estimated poses / ground-truth poses.
+
+``format_table`` adds, when given, each method's share of ``ok`` / ``weak`` /
+``bridged`` / ``suspect`` poses over all frames (``estimator.status``): a
+trajectory that covers every frame may still be mostly bridged.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from signpose.estimator.status import PoseStatus
 from signpose.estimator.trajectory import Trajectory
 
 
@@ -38,24 +46,27 @@ class Metrics:
     Attributes:
         n_matched: associated poses.
         coverage: n_matched / ground-truth poses.
-        mae_xyz: (3,) per-axis mean absolute error [m].
-        ate_rmse: ATE RMSE without alignment [m].
-        ate_rmse_aligned: ATE RMSE after SE(3) Umeyama alignment [m].
+        mae_xyz_m: (3,) per-axis mean absolute error [m].
+        ate_rmse_m: ATE RMSE without alignment [m].
+        ate_rmse_aligned_m: ATE RMSE after SE(3) Umeyama alignment [m].
         rpe_trans_per_m: RPE translation RMSE per metre travelled [m/m].
         rpe_pairs: number of RPE pairs.
+        rot_rmse_deg: RMS rotation error without alignment [deg].
     """
 
     n_matched: int
     coverage: float
-    mae_xyz: tuple[float, float, float]
-    ate_rmse: float
-    ate_rmse_aligned: float
+    mae_xyz_m: tuple[float, float, float]
+    ate_rmse_m: float
+    ate_rmse_aligned_m: float
     rpe_trans_per_m: float
     rpe_pairs: int
+    rot_rmse_deg: float
 
     def to_dict(self) -> dict:
+        """The metrics under their field names (the keys of report.json's ``metrics``)."""
         d = asdict(self)
-        d["mae_xyz"] = list(self.mae_xyz)
+        d["mae_xyz_m"] = list(self.mae_xyz_m)
         return {
             k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in d.items()
         }
@@ -140,7 +151,16 @@ def compute_metrics(
     n = len(ie)
     nan = float("nan")
     if n == 0:
-        return Metrics(0, 0.0, (nan, nan, nan), nan, nan, nan, 0)
+        return Metrics(
+            n_matched=0,
+            coverage=0.0,
+            mae_xyz_m=(nan, nan, nan),
+            ate_rmse_m=nan,
+            ate_rmse_aligned_m=nan,
+            rpe_trans_per_m=nan,
+            rpe_pairs=0,
+            rot_rmse_deg=nan,
+        )
     pe, pg = est.world_t_cam[ie], gt.world_t_cam[ig]
     d = pe - pg
     mae = tuple(float(x) for x in np.mean(np.abs(d), axis=0))
@@ -153,23 +173,62 @@ def compute_metrics(
         ate_al = nan
     errs, n_pairs = rpe_translation(est.world_T_cam()[ie], gt.world_T_cam()[ig], delta_m)
     rpe = float(np.sqrt(np.mean(errs**2)) / delta_m) if n_pairs else nan
-    return Metrics(n, n / len(gt), mae, ate, ate_al, rpe, n_pairs)
+    rot = rotation_errors_deg(est.world_R_cam()[ie], gt.world_R_cam()[ig])
+    return Metrics(
+        n_matched=n,
+        coverage=n / len(gt),
+        mae_xyz_m=mae,
+        ate_rmse_m=ate,
+        ate_rmse_aligned_m=ate_al,
+        rpe_trans_per_m=rpe,
+        rpe_pairs=n_pairs,
+        rot_rmse_deg=float(np.sqrt(np.mean(rot**2))),
+    )
 
 
-def format_table(rows: dict[str, Metrics]) -> str:
-    """A plain-text table, one row per method (the paper's Table 4 errors and more)."""
+def rotation_errors_deg(world_R_est: np.ndarray, world_R_gt: np.ndarray) -> np.ndarray:
+    """(N,) angle of ``world_R_gt^T world_R_est`` [deg] for (N, 3, 3) rotations."""
+    # trace(A^T B) = sum of the elementwise product; angle = arccos((trace - 1) / 2).
+    cos = (np.einsum("nij,nij->n", world_R_est, world_R_gt) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+STATUS_COLUMNS = tuple(s.value for s in PoseStatus)  # ok, weak, bridged, suspect
+
+
+def format_table(
+    rows: Mapping[str, Metrics], status: Mapping[str, Mapping[str, float]] | None = None
+) -> str:
+    """A plain-text table, one row per method (the paper's Table 4 errors and more).
+
+    Args:
+        rows: method -> its metrics.
+        status: method -> share of frames with each pose status token
+            (``signpose.io.results.status_shares``); None leaves the status
+            columns out, a method missing from it shows ``-``.
+    """
     head = (
         f"{'method':<10} {'MAE x':>8} {'MAE y':>8} {'MAE z':>8} {'ATE':>8} "
-        f"{'ATE(al)':>8} {'RPE/m':>8} {'cover':>7}"
+        f"{'ATE(al)':>8} {'RPE/m':>8} {'rot deg':>8} {'cover':>7}"
     )
+    if status is not None:
+        head += "".join(f" {t:>7}" for t in STATUS_COLUMNS)
     lines = [head, "-" * len(head)]
 
     def f(x: float) -> str:
         return f"{x:8.4f}" if np.isfinite(x) else f"{'-':>8}"
 
     for name, m in rows.items():
-        lines.append(
-            f"{name:<10} {f(m.mae_xyz[0])} {f(m.mae_xyz[1])} {f(m.mae_xyz[2])} "
-            f"{f(m.ate_rmse)} {f(m.ate_rmse_aligned)} {f(m.rpe_trans_per_m)} {m.coverage:7.1%}"
+        line = (
+            f"{name:<10} {f(m.mae_xyz_m[0])} {f(m.mae_xyz_m[1])} {f(m.mae_xyz_m[2])} "
+            f"{f(m.ate_rmse_m)} {f(m.ate_rmse_aligned_m)} {f(m.rpe_trans_per_m)} "
+            f"{f(m.rot_rmse_deg)} {m.coverage:7.1%}"
         )
+        if status is not None:
+            shares = status.get(name)
+            line += "".join(
+                f" {shares.get(t, 0.0):7.1%}" if shares is not None else f" {'-':>7}"
+                for t in STATUS_COLUMNS
+            )
+        lines.append(line)
     return "\n".join(lines)

@@ -388,7 +388,7 @@ def motion_section(camera, flights: list[str], n: int, sigma_px: float, seed: in
 
 
 def mean_mae(m: Metrics) -> float:
-    return float(np.mean(m.mae_xyz))
+    return float(np.mean(m.mae_xyz_m))
 
 
 def main(argv=None) -> int:

@@ -396,9 +396,9 @@ def _method_metrics(trajs: dict, gt) -> dict:
     for name, tr in trajs.items():
         m = compute_metrics(tr, gt) if len(tr.stamps_s) else None
         out[name] = {
-            "mae_xyz": list(m.mae_xyz) if m else [float("nan")] * 3,
+            "mae_xyz": list(m.mae_xyz_m) if m else [float("nan")] * 3,
             "coverage": m.coverage if m else 0.0,
-            "ate_rmse": m.ate_rmse if m else float("nan"),
+            "ate_rmse": m.ate_rmse_m if m else float("nan"),
             "n": int(m.n_matched) if m else 0,
         }
     return out
@@ -939,7 +939,7 @@ def _mean_axes(scen: Mapping, key_prefix: str, method: str) -> tuple[list[float]
     for key, s in scen.items():
         if key.startswith(key_prefix) and method in s["metrics"]:
             m = s["metrics"][method]
-            maes.append([_num(x) for x in m["mae_xyz"]])
+            maes.append([_num(x) for x in m["mae_xyz_m"]])
             covs.append(_num(m["coverage"]))
     if not maes:
         return [float("nan")] * 3, float("nan"), 0

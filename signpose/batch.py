@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from signpose.core.errors import InputError, SignposeError
 from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.estimator.status import PoseStatus
 from signpose.fingerprint import (
     FINGERPRINT_KEY,
     content_digest,
@@ -106,6 +107,11 @@ class FlightOutcome:
         frames: frames processed.
         coverage: method -> fraction of frames with a pose.
         position_rmse_m: method -> RMS position error vs ground truth [m].
+        pose_status: method -> share of frames with each pose status token
+            (``ok``, ``weak``, ``bridged``, ``suspect``, or a failure token).
+        errors: method -> the errors against ground truth named in
+            ``ERROR_COLUMNS`` (per-axis MAE and aligned ATE [m], rotation RMSE
+            [deg]); empty without ground truth.
         time_s: wall time of the flight [s].
         message: why it failed / where the input stopped, else "".
         skipped: True when a previous run had finished it.
@@ -122,6 +128,39 @@ class FlightOutcome:
     message: str = ""
     skipped: bool = False
     internal: bool = False
+    pose_status: dict[str, dict[str, float]] = field(default_factory=dict)
+    errors: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def bridged(self, method: str) -> int | None:
+        """Frames of ``method`` bridged by the motion prior (None when not recorded)."""
+        share = self.pose_status.get(method, {}).get(PoseStatus.BRIDGED.value)
+        if share is None:
+            return 0 if method in self.pose_status else None
+        return round(share * self.frames)
+
+
+# summary.csv's error columns per method (``<column>_<method>``) and where each comes from
+# in a method's ``Metrics.to_dict()``: (key, index into a per-axis list or None).
+ERROR_COLUMNS = {
+    "mae_x_m": ("mae_xyz_m", 0),
+    "mae_y_m": ("mae_xyz_m", 1),
+    "mae_z_m": ("mae_xyz_m", 2),
+    "ate_aligned_m": ("ate_rmse_aligned_m", None),
+    "rot_rmse_deg": ("rot_rmse_deg", None),
+}
+STATUS_TOKENS = tuple(s.value for s in PoseStatus)  # summary.csv's share columns
+
+
+def errors_from_metrics(metrics: dict | None) -> dict[str, float]:
+    """``ERROR_COLUMNS`` of one method's ``Metrics.to_dict()`` (missing or null: left out)."""
+    out = {}
+    for column, (key, index) in ERROR_COLUMNS.items():
+        value = (metrics or {}).get(key)
+        if index is not None:
+            value = value[index] if isinstance(value, list) and len(value) == 3 else None
+        if isinstance(value, int | float):
+            out[column] = float(value)
+    return out
 
 
 def flight_names(
@@ -210,6 +249,8 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             position_rmse_m=result.position_rmse_m,
             time_s=time.perf_counter() - t0,
             message="; ".join(result.problems),
+            pose_status=result.status,
+            errors={k: errors_from_metrics(v) for k, v in (result.comparison or {}).items()},
         )
     except SignposeError as exc:
         return FlightOutcome(
@@ -256,19 +297,29 @@ def read_done(out_dir: Path) -> FlightOutcome | None:
 
 
 def write_summary(path: Path, outcomes: list[FlightOutcome]) -> None:
-    """summary.csv (atomically): flight, status, frames, coverage and error per method, time.
+    """summary.csv (atomically): flight, status, frames, per method coverage, pose status
+    shares, bridged frames and errors, time.
+
+    Per method ``m``: ``coverage_m`` (share of frames posed), ``share_<token>_m``
+    for ok / weak / bridged / suspect (share of all frames), ``bridged_m``
+    (frames), ``position_rmse_m_m``, ``mae_x_m_m`` / ``mae_y_m_m`` /
+    ``mae_z_m_m``, ``ate_aligned_m_m`` [m] and ``rot_rmse_deg_m`` [deg]
+    (errors empty without ground truth).
 
     Rows an earlier call wrote into the same file stay: a flight of
     ``outcomes`` replaces its own row in place, other flights' rows are kept
     as they were, new flights come last.
     """
     methods = sorted(
-        {m for o in outcomes for m in (*o.coverage, *o.position_rmse_m)},
+        {m for o in outcomes for m in (*o.coverage, *o.position_rmse_m, *o.pose_status)},
         key=lambda m: (_METHOD_ORDER.index(m) if m in _METHOD_ORDER else 99, m),
     )
     header = ["flight", "status", "frames"]
     header += [f"coverage_{m}" for m in methods]
+    header += [f"share_{t}_{m}" for t in STATUS_TOKENS for m in methods]
+    header += [f"bridged_{m}" for m in methods]
     header += [f"position_rmse_m_{m}" for m in methods]
+    header += [f"{c}_{m}" for c in ERROR_COLUMNS for m in methods]
     header += ["time_s", "skipped", "message"]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -284,7 +335,10 @@ def write_summary(path: Path, outcomes: list[FlightOutcome]) -> None:
     for o in outcomes:
         row = [o.flight, o.status, o.frames]
         row += [fmt(o.coverage.get(m), 4) for m in methods]
+        row += [_share(o, t, m) for t in STATUS_TOKENS for m in methods]
+        row += ["" if o.bridged(m) is None else o.bridged(m) for m in methods]
         row += [fmt(o.position_rmse_m.get(m), 4) for m in methods]
+        row += [fmt(o.errors.get(m, {}).get(c), 4) for c in ERROR_COLUMNS for m in methods]
         row += [fmt(o.time_s, 2), "yes" if o.skipped else "", o.message]
         rows[o.flight] = dict(zip(header, row, strict=True))
     header, merged = _with_earlier_rows(path, header, rows)
@@ -293,6 +347,12 @@ def write_summary(path: Path, outcomes: list[FlightOutcome]) -> None:
         w.writerow([row.get(h, "") for h in header])
     with atomic_write(path) as f:
         f.write(buf.getvalue())
+
+
+def _share(outcome: FlightOutcome, token: str, method: str) -> str:
+    """The share of ``method``'s frames with status ``token`` (4 decimals; "" if not recorded)."""
+    shares = outcome.pose_status.get(method)
+    return "" if shares is None else f"{shares.get(token, 0.0):.4f}"
 
 
 def _with_earlier_rows(

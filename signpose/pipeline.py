@@ -1007,7 +1007,9 @@ def _write_run_files(
         stamps = np.array([f.stamp_ns for f in obs.frames], float) * 1e-9
         map_codes = set(sign_map.codes)
         seen = np.array([sum(o.code in map_codes for o in f.signs) for f in obs.frames])
-        files += write_plots(out, PlotData(sign_map, trajs, sigmas, gt, stamps, seen))
+        statuses = {k: tuple(st.value for st in m.status) for k, m in estimate.methods.items()}
+        plot_data = PlotData(sign_map, trajs, sigmas, gt, stamps, seen, statuses=statuses)
+        files += write_plots(out, plot_data)
     if s.mcap:
         images = None
         if s.with_images:
@@ -1061,8 +1063,8 @@ def _position_errors(
     """method -> RMS position error [m]: the comparison's ATE where it has one."""
     rmse = {} if gt is None else {k: position_rmse(v, gt) for k, v in trajs.items()}
     for name, metrics in (comparison or {}).items():
-        if isinstance(metrics, dict) and metrics.get("ate_rmse") is not None:
-            rmse[name] = float(metrics["ate_rmse"])
+        if isinstance(metrics, dict) and metrics.get("ate_rmse_m") is not None:
+            rmse[name] = float(metrics["ate_rmse_m"])
     return rmse
 
 

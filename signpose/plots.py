@@ -27,6 +27,8 @@ from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from signpose.core.fileio import atomic_path
+from signpose.estimator.metrics import rotation_errors_deg
+from signpose.estimator.status import PoseStatus
 from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import SignMap
 
@@ -36,6 +38,16 @@ SIGMA_BAND = 2.0  # bands are +-2 sigma
 DPI = 110  # PNG resolution [dots per inch]
 # Held while matplotlib lays out or renders text (its mathtext parser is one per process).
 _RENDER_LOCK = threading.Lock()
+# Marker colour of each pose status (views.png) and of the status band (signs_per_frame.png);
+# any other token (a per-frame method's failure: no pose) is drawn as "no pose".
+STATUS_COLORS = {
+    PoseStatus.OK.value: "#2ca02c",
+    PoseStatus.WEAK.value: "#edb120",
+    PoseStatus.BRIDGED.value: "#7f7f7f",
+    PoseStatus.SUSPECT.value: "#d62728",
+}
+NO_POSE = "no pose"
+_NO_POSE_COLOR = "0.93"  # light grey: a gap in the band
 
 
 @dataclass(frozen=True)
@@ -50,6 +62,9 @@ class PlotData:
         groundtruth: the true trajectory, or None.
         frame_stamps_s: (F,) time of every processed frame [s].
         signs_per_frame: (F,) number of decoded map signs per processed frame.
+        statuses: method -> (N,) pose status token per stamp of that method's
+            trajectory (``ok``, ``weak``, ``bridged``, ``suspect``, or a
+            failure token where it has no pose); methods may be missing.
     """
 
     sign_map: SignMap
@@ -58,6 +73,24 @@ class PlotData:
     groundtruth: Trajectory | None = None
     frame_stamps_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     signs_per_frame: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    statuses: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+
+def status_shares_text(tokens: tuple[str, ...] | list[str]) -> str:
+    """``ok 90% weak 5% bridged 5% suspect 0%`` (poses without a status: ``no pose``)."""
+    n = max(len(tokens), 1)
+    parts = [f"{t} {100 * sum(x == t for x in tokens) / n:.0f}%" for t in STATUS_COLORS]
+    missing = sum(x not in STATUS_COLORS for x in tokens)
+    if missing:
+        parts.append(f"{NO_POSE} {100 * missing / n:.0f}%")
+    return " ".join(parts)
+
+
+def _status_method(data: PlotData) -> str | None:
+    """The method whose statuses the plots show: smoothed when it has them."""
+    if "smoothed" in data.statuses:
+        return "smoothed"
+    return next(iter(data.statuses), None)
 
 
 def _color(name: str, i: int) -> str:
@@ -207,7 +240,32 @@ def plot_views(path: str | os.PathLike, data: PlotData) -> Path:
     axes_t[0].set_title(f"position over time (bands: +-{SIGMA_BAND:g} sigma)")
     axes_t[0].legend(fontsize=8)
     axes_t[2].set_xlabel("time [s]")
+    _mark_statuses(data, top, side, axes_t)
     return _save(fig, Path(path))
+
+
+def _mark_statuses(data: PlotData, top, side, axes_t) -> None:
+    """Dots on one method's poses coloured by status, the shares in the top view's legend."""
+    name = _status_method(data)
+    if name is None or name not in data.trajectories:
+        return
+    traj = data.trajectories[name]
+    tokens = np.asarray(data.statuses[name], dtype=object)
+    if len(tokens) != len(traj):
+        return
+    p, t = traj.world_t_cam, traj.stamps_s - _t0(data)
+    n = len(tokens)
+    for token, c in STATUS_COLORS.items():
+        sel = tokens == token
+        if not np.any(sel):
+            continue
+        label = f"{name} {token} {100 * sel.sum() / n:.0f}%"
+        top.scatter(p[sel, 0], p[sel, 1], s=9, color=c, zorder=3, label=label)
+        side.scatter(p[sel, 1], p[sel, 2], s=9, color=c, zorder=3)
+        for k in range(3):
+            axes_t[k].scatter(t[sel], p[sel, k], s=6, color=c, zorder=3)
+    top.legend(fontsize=8)
+    side.set_title(f"side view; {name} poses by status")
 
 
 def _associate(traj: Trajectory, gt: Trajectory, tol_s: float = 1e-3) -> tuple:
@@ -227,9 +285,7 @@ def pose_errors(traj: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarra
     """(stamps [s], position error [m], rotation error [deg]) at the stamps both have."""
     i, j = _associate(traj, gt)
     dp = np.linalg.norm(traj.world_t_cam[i] - gt.world_t_cam[j], axis=1)
-    Ra, Rb = traj.world_R_cam()[i], gt.world_R_cam()[j]
-    cos = (np.einsum("nij,nij->n", Ra, Rb) - 1.0) / 2.0
-    dr = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    dr = rotation_errors_deg(traj.world_R_cam()[i], gt.world_R_cam()[j])
     return traj.stamps_s[i], dp, dr
 
 
@@ -259,9 +315,15 @@ def plot_errors(path: str | os.PathLike, data: PlotData) -> Path | None:
 
 
 def plot_signs_per_frame(path: str | os.PathLike, data: PlotData) -> Path:
-    """Number of decoded map signs in every frame."""
-    fig = new_figure((10, 3.2))
-    ax = fig.subplots()
+    """Number of decoded map signs in every frame, with a band of the poses' statuses."""
+    name = _status_method(data)
+    tokens = data.statuses.get(name, ()) if name is not None else ()
+    band = len(tokens) == len(data.frame_stamps_s) and len(tokens) > 0
+    fig = new_figure((10, 3.8 if band else 3.2))
+    if band:
+        ax, ax_band = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [5, 1]})
+    else:
+        ax, ax_band = fig.subplots(), None
     t = data.frame_stamps_s - _t0(data)
     n = np.asarray(data.signs_per_frame)
     ax.step(t, n, where="mid", color="#0072bd", lw=1.0)
@@ -276,7 +338,44 @@ def plot_signs_per_frame(path: str | os.PathLike, data: PlotData) -> Path:
     ax.set_ylim(0, max(top, 1) + 0.5)
     ax.set_title(f"signs seen per frame (mean {float(n.mean()) if len(n) else 0.0:.1f})")
     ax.grid(alpha=0.3)
+    if ax_band is not None and name is not None:
+        ax.set_xlabel("")
+        _status_band(ax_band, t, tuple(tokens), name)
     return _save(fig, Path(path))
+
+
+def _status_band(ax, t: np.ndarray, tokens: tuple[str, ...], name: str) -> None:
+    """One coloured cell per frame: the status of ``name``'s pose, shares in the title."""
+    edges = _cell_edges(t)
+    for token, c in (*STATUS_COLORS.items(), (NO_POSE, _NO_POSE_COLOR)):
+        if token == NO_POSE:
+            sel = np.array([x not in STATUS_COLORS for x in tokens])
+        else:
+            sel = np.array([x == token for x in tokens])
+        if np.any(sel):
+            ax.bar(
+                edges[:-1][sel],
+                1.0,
+                width=np.diff(edges)[sel],
+                align="edge",
+                color=c,
+                edgecolor="none",
+                label=token,
+            )
+    ax.set_yticks([])
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(name, fontsize=8)
+    ax.set_title(f"{name} pose status: {status_shares_text(tokens)}", fontsize=9)
+    ax.legend(fontsize=7, ncol=5, loc="upper right", bbox_to_anchor=(1.0, -0.6))
+
+
+def _cell_edges(t: np.ndarray) -> np.ndarray:
+    """(F+1,) edges of one cell per stamp, halfway between neighbouring stamps [s]."""
+    if len(t) == 1:
+        return np.array([t[0] - 0.5, t[0] + 0.5])
+    mid = (t[:-1] + t[1:]) / 2
+    return np.concatenate([[2 * t[0] - mid[0]], mid, [2 * t[-1] - mid[-1]]])
 
 
 def write_plots(out_dir: str | os.PathLike, data: PlotData) -> list[Path]:

@@ -176,16 +176,20 @@ def _metrics_section(report: Mapping) -> list[str]:
     for method, metrics in methods.items():
         row: dict[str, Cell] = {}
         for key, value in (metrics or {}).items():
-            if isinstance(value, list) and len(value) == 3 and key.endswith("_xyz"):
+            if isinstance(value, list) and len(value) == 3 and "_xyz" in key:
+                # mae_xyz_m -> mae_x_m, mae_y_m, mae_z_m (the unit stays in the name)
                 for axis, v in zip("xyz", value, strict=True):
-                    row[f"{key[:-4]} {axis}"] = v
+                    row[key.replace("_xyz", f"_{axis}", 1)] = v
             else:
                 row[key] = _scalar(value)
         columns += [c for c in row if c not in columns]
         rows[method] = row
     body = [[m, *(r.get(c) for c in columns)] for m, r in rows.items()]
     out.append(table(["method", *columns], body))
-    out.append("<p>Distances in metres, coverage as a fraction of the frames.</p>\n")
+    out.append(
+        "<p>Units in the names (_m metres, _deg degrees); coverage as a fraction of the "
+        "frames.</p>\n"
+    )
     return out
 
 

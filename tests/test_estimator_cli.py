@@ -36,11 +36,11 @@ def test_estimate_then_compare_round_trip(flight, tmp_path, capsys):
         assert (out / f"{name}.tum").exists()
     csv = read_trajectory_csv(out / "trajectory.csv")
     sm = read_tum(out / "smoothed.tum")
-    assert np.allclose(csv["smoothed"]["x"], sm.world_t_cam[:, 0], atol=1e-6)
-    assert np.all(np.isfinite(csv["smoothed"]["sigma_x"]))
+    assert np.allclose(csv["smoothed"]["x_m"], sm.world_t_cam[:, 0], atol=1e-6)
+    assert np.all(np.isfinite(csv["smoothed"]["sigma_x_m"]))
     assert np.allclose(sm.world_t_cam, gt.world_t_cam, atol=0.5)
     base = csv["baseline"]
-    posed = ~np.isnan(base["x"])
+    posed = ~np.isnan(base["x_m"])
     assert len(read_tum(out / "baseline.tum")) == posed.sum()
     report = json.loads((out / "report.json").read_text())
     assert report["coverage"]["smoothed"]["coverage"] == 1.0

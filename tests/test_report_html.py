@@ -116,7 +116,7 @@ def _report() -> dict:
         },
         "metrics": {
             "groundtruth": "gt.tum",
-            "methods": {"smoothed": {"mae_xyz": [0.011, 0.012, 0.013], "ate_rmse": 0.0212}},
+            "methods": {"smoothed": {"mae_xyz_m": [0.011, 0.012, 0.013], "ate_rmse_m": 0.0212}},
         },
         "pipeline": {"input": "flight/video.mp4", "problems": ["video.mp4: stopped at frame 19"]},
     }

@@ -85,7 +85,7 @@ def _decoder() -> dict:
 
 def _estimator() -> dict:
     def metrics(x: float) -> dict:
-        m = {"n_matched": 120, "coverage": 1.0, "mae_xyz": [x, 0.002, 0.01]}
+        m = {"n_matched": 120, "coverage": 1.0, "mae_xyz_m": [x, 0.002, 0.01]}
         return {k: m for k in ("baseline", "pnp", "smoothed")}
 
     scenarios = {

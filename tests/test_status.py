@@ -74,7 +74,7 @@ def test_a_frame_with_five_times_the_noise_is_suspect_and_files_carry_tokens(tmp
     write_outputs(tmp_path, r)
     csv = read_trajectory_csv(tmp_path / "trajectory.csv")
     assert csv["smoothed"]["status"][20] == "suspect" and csv["pnp"]["status"][30] == "few_points"
-    assert np.isfinite(csv["pnp"]["sigma_x"][0])
+    assert np.isfinite(csv["pnp"]["sigma_x_m"][0])
     report = json.loads((tmp_path / "report.json").read_text())
     shares = report["coverage"]["smoothed"]["status"]
     assert shares["bridged"] == pytest.approx(1 / 40) and shares["suspect"] == pytest.approx(1 / 40)

@@ -5,27 +5,35 @@ This is the one module that reads and writes ``trajectory.csv`` and
 atomically.
 
 trajectory.csv: one row per frame and method, header
-``method,frame,t,x,y,z,qw,qx,qy,qz,sigma_x,sigma_y,sigma_z,signs_used,status``;
-t in seconds, position of the camera centre in the world [m], rotation
-world_R_cam as a unit quaternion (w first); empty pose/sigma fields where the
+``method,frame,t_s,x_m,y_m,z_m,qw,qx,qy,qz,sigma_x_m,sigma_y_m,sigma_z_m,signs_used,status``
+(the unit of each column in its name); t in seconds, position of the camera
+centre in the world [m], rotation world_R_cam as a unit quaternion (w first),
+position sigma per world axis [m]; empty pose/sigma fields where the
 method has no pose or no sigma (never NaN); status is a token: ``ok``,
 ``weak``, ``bridged`` or ``suspect`` for a pose (see
 ``estimator.status.PoseStatus``), else why there is none (``few_signs``,
-``collinear``, ...: ``estimator.perframe.PoseFailure``).
+``collinear``, ...: ``estimator.perframe.PoseFailure``), never free text.
+``read_trajectory_csv`` also reads the header before units were added
+(``t,x,y,z,...,sigma_z``) and returns the columns under the new names.
 
-report.json: settings, versions, per method coverage with the share of each
-status token and the weak poses' worst-axis sigma, timing, the outliers
+report.json: settings, versions (from the installed packages' metadata), per
+method coverage with the share of each status token and the weak poses'
+worst-axis sigma, timing, the outliers
 (down-weighted, mis-decoded, and ``rejected``: each observation left out with
 the test that rejected it: ``pnp_gate``, ``innovation``, ``tukey`` or
-``gnc``), and the motion prior chosen from the flight.
+``gnc``), the motion prior chosen from the flight, and after ``compare_dir``
+the metrics against ground truth (``estimator.metrics.Metrics``: keys carry
+their unit, ``mae_xyz_m``, ``ate_rmse_m``, ``rot_rmse_deg``, ...).
 """
 
 from __future__ import annotations
 
 import csv
+import importlib.metadata
 import io
 import json
 import platform
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +47,24 @@ from signpose.estimator.trajectory import Trajectory, quat_xyzw_from_rotation
 from signpose.io.tum import read_tum, write_tum
 
 CSV_HEADER = (
+    "method",
+    "frame",
+    "t_s",
+    "x_m",
+    "y_m",
+    "z_m",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    "sigma_x_m",
+    "sigma_y_m",
+    "sigma_z_m",
+    "signs_used",
+    "status",
+)
+# The header written before the units were named (read, never written).
+_OLD_CSV_HEADER = (
     "method",
     "frame",
     "t",
@@ -56,6 +82,13 @@ CSV_HEADER = (
     "status",
 )
 MAX_LISTED_OUTLIERS = 2000
+# Distribution name of each package in report.json's "versions" (cv2 is opencv's module).
+_DISTRIBUTIONS = {
+    "signpose": ("signpose",),
+    "gtsam": ("gtsam",),
+    "cv2": ("opencv-python-headless", "opencv-python", "opencv-contrib-python"),
+    "numpy": ("numpy",),
+}
 
 
 def method_trajectory(m: MethodEstimate) -> Trajectory:
@@ -63,13 +96,20 @@ def method_trajectory(m: MethodEstimate) -> Trajectory:
     return Trajectory.from_matrices(m.stamps_s[m.valid], m.world_T_cam[m.valid])
 
 
-def _versions() -> dict:
-    out = {"python": platform.python_version()}
-    for mod in ("signpose", "gtsam", "cv2", "numpy"):
+def package_version(names: tuple[str, ...]) -> str:
+    """Version of the first installed distribution of ``names`` ("unknown" when none is)."""
+    for name in names:
         try:
-            out[mod] = str(__import__(mod).__version__)
-        except (ImportError, AttributeError):
-            out[mod] = "unknown"
+            return importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return "unknown"
+
+
+def _versions() -> dict:
+    # Package metadata, not ``module.__version__``: gtsam's module has none.
+    out = {"python": platform.python_version()}
+    out |= {mod: package_version(dists) for mod, dists in _DISTRIBUTIONS.items()}
     return out
 
 
@@ -199,14 +239,18 @@ def write_outputs(out_dir: str | Path, result: EstimateResult) -> list[Path]:
 
 
 def read_trajectory_csv(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
-    """trajectory.csv back as method -> column -> array (empty fields -> NaN)."""
+    """trajectory.csv back as method -> column -> array (empty fields -> NaN).
+
+    Columns are named as in ``CSV_HEADER`` (``t_s``, ``x_m``, ...), also for a
+    file with the header from before the units were named.
+    """
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(f"{p}: cannot read ({exc.strerror})") from None
     rows = list(csv.reader(io.StringIO(text)))
-    if not rows or tuple(rows[0]) != CSV_HEADER:
+    if not rows or tuple(rows[0]) not in (CSV_HEADER, _OLD_CSV_HEADER):
         raise InputError(f"{p}: not a signpose trajectory.csv (wrong header)")
     out: dict[str, dict[str, list]] = {}
     for lineno, r in enumerate(rows[1:], start=2):
@@ -263,7 +307,8 @@ def compare_dir(out_dir: str | Path, gt_path: str | Path) -> dict[str, dict]:
 
     Returns:
         method -> Metrics.to_dict(); report.json gets a ``"metrics"`` entry
-        (rewritten atomically; created if missing).
+        (rewritten atomically; created if missing) whose table has each
+        method's pose status shares when report.json records them.
     """
     gt = read_tum(gt_path)
     metrics = {
@@ -275,10 +320,23 @@ def compare_dir(out_dir: str | Path, gt_path: str | Path) -> dict[str, dict]:
     report["metrics"] = {
         "groundtruth": str(gt_path),
         "methods": out,
-        "table": format_table(metrics),
+        "table": format_table(metrics, recorded_status(report)),
     }
     write_json(report_path, report)
     return out
+
+
+def recorded_status(report: Mapping) -> dict[str, dict[str, float]] | None:
+    """method -> share of each pose status token, from report.json's coverage (None: none)."""
+    coverage = report.get("coverage")
+    if not isinstance(coverage, Mapping):
+        return None
+    shares = {
+        name: c["status"]
+        for name, c in coverage.items()
+        if isinstance(c, Mapping) and isinstance(c.get("status"), Mapping)
+    }
+    return shares or None
 
 
 def metrics_table(out_dir: str | Path) -> str:
