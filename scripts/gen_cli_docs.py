@@ -27,6 +27,7 @@ from signpose.cli import (
     EXIT_INTERNAL,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    EXIT_TERMINATED,
     build_parser,
 )
 from signpose.core.fileio import atomic_write
@@ -39,6 +40,10 @@ EXIT_CODES = (
     (EXIT_INTERNAL, "internal error (`signpose --debug ...` shows the traceback)"),
     (EXIT_INPUT, "bad input: one line on stderr naming the file and what to fix"),
     (EXIT_INTERRUPTED, "interrupted (Ctrl-C); what was done is flushed and valid"),
+    (
+        EXIT_TERMINATED,
+        "terminated (SIGTERM: timeout, Docker, Slurm); flushed and valid as on Ctrl-C",
+    ),
 )
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import signal
 import time
 
 import numpy as np
@@ -17,7 +18,9 @@ import pytest
 from signpose.estimator.camera import pinhole_camera
 from signpose.maps.loader import MAX_MAP_BYTES, bundled_map_path, load_map
 
+from signpose.cli import EXIT_TERMINATED
 from signpose.cli import main as cli_main
+from signpose.cli import sign as sign_cli
 from signpose.core import fileio
 from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_path, atomic_write
@@ -164,3 +167,20 @@ def test_estimate_on_observations_without_any_sign_exits_2(tmp_path, capsys):
     assert code == 2
     assert err.count("\n") == 0 and str(path) in err and "no sign was decoded" in err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+# --------------------------------------------------------------------------- #18 SIGTERM
+
+
+def test_sigterm_cleans_up_like_ctrl_c_and_exits_143(tmp_path, monkeypatch, capsys):
+    def render_then_terminated(code, diameter_mm):
+        os.kill(os.getpid(), signal.SIGTERM)  # arrives while the output is being written
+        return "<svg/>"
+
+    monkeypatch.setattr(sign_cli, "render_sign_svg", render_then_terminated)
+    before = signal.getsignal(signal.SIGTERM)
+    code = cli_main(["sign", "0101", "--out", str(tmp_path / "sign.svg")])
+    assert code == EXIT_TERMINATED == 143
+    assert "terminated (SIGTERM)" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no half-written file, no temporary
+    assert signal.getsignal(signal.SIGTERM) is before  # the handler is the command's only

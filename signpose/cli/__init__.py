@@ -12,7 +12,9 @@ import contextlib
 import importlib
 import logging
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from signpose import __version__
@@ -37,6 +39,34 @@ COMMANDS = (
 )
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_TERMINATED = 143  # 128 + SIGTERM, what a shell reports for a terminated job
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (timeout, Docker, Slurm, Dask), raised where the main thread is.
+
+    A KeyboardInterrupt, so every path that flushes and cleans up on Ctrl-C
+    (observations written so far, temporary files removed) does so on SIGTERM.
+    """
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM raises Terminated while the command runs (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 # Options every command takes before or after its name: ``signpose -q run`` = ``signpose run -q``.
 GLOBAL_OPTIONS = (
     (("-q", "--quiet"), "no progress bars, no timing or file lists: the result and errors"),
@@ -102,10 +132,14 @@ def main(argv: list[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
     )
     try:
-        code = args.func(args)
+        with _sigterm_as_interrupt():
+            code = args.func(args)
     except SignposeError as exc:
         print(f"signpose {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
+    except Terminated:
+        print(f"signpose {args.command}: terminated (SIGTERM)", file=sys.stderr)
+        return EXIT_TERMINATED
     except KeyboardInterrupt:
         print(f"signpose {args.command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
