@@ -754,6 +754,12 @@ def _observation(
         bbox_px=box,
         sigma_px=sigma if math.isfinite(sigma) and sigma > 0 else DEFAULT_SIGMA_PX,
         score=min(max(_window_score(n_windows) * (0.5 + 0.5 * float(res.quality)), 0.0), 1.0),
+        erased_slots=tuple(int(s) for s in res.erased_slots),
+        keypoint_sigma_px={
+            k: (float(su), float(sv))
+            for k, (su, sv) in res.keypoint_sigma_px.items()
+            if k in res.keypoints_px
+        },
     )
 
 

@@ -7,12 +7,14 @@ import json
 import cv2
 import numpy as np
 import pytest
+from signpose.frontend.decoder import DecodeReason, DecodeResult
 from signpose.frontend.detector import (
     DetectionResult,
     DetectorMode,
     DetectorSettings,
     PredictedSign,
     SignDetector,
+    _observation,
     group_merge,
     one_per_sign,
     paper_merge,
@@ -249,3 +251,20 @@ def test_a_sign_in_front_of_a_black_sky_is_a_candidate():
 
     assert candidate_at_sign(DetectorSettings())
     assert not candidate_at_sign(DetectorSettings(fast_grey_discs=False))
+
+
+def test_observations_carry_the_decoders_erased_slots_and_keypoint_sigmas():
+    res = DecodeResult(
+        code="1011",
+        reason=DecodeReason.OK,
+        keypoints_px={"center": (10.0, 20.0), "slot3": (12.0, 22.0)},
+        sigma_px=0.08,
+        quality=0.9,
+        erased_slots=(1,),
+        keypoint_sigma_px={"center": (0.05, 0.06), "slot3": (0.1, 0.1), "slot1": (0.2, 0.2)},
+    )
+    obs = _observation(res, (0.0, 0.0, 30.0, 30.0), 4)
+    assert obs.erased_slots == (1,)
+    # A sigma of a keypoint the reading dropped is not reported.
+    assert obs.keypoint_sigma_px == {"center": (0.05, 0.06), "slot3": (0.1, 0.1)}
+    assert obs.sigma_px == pytest.approx(0.08)
