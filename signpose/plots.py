@@ -47,6 +47,9 @@ STATUS_COLORS = {
     PoseStatus.SUSPECT.value: "#d62728",
 }
 NO_POSE = "no pose"
+# Marker areas [points^2]: ok poses small (the line stays visible), the others stand out.
+_OK_MARKER = 2.0
+_FLAGGED_MARKER = 12.0
 _NO_POSE_COLOR = "0.93"  # light grey: a gap in the band
 
 
@@ -260,10 +263,11 @@ def _mark_statuses(data: PlotData, top, side, axes_t) -> None:
         if not np.any(sel):
             continue
         label = f"{name} {token} {100 * sel.sum() / n:.0f}%"
-        top.scatter(p[sel, 0], p[sel, 1], s=9, color=c, zorder=3, label=label)
-        side.scatter(p[sel, 1], p[sel, 2], s=9, color=c, zorder=3)
+        size = _OK_MARKER if token == PoseStatus.OK.value else _FLAGGED_MARKER
+        top.scatter(p[sel, 0], p[sel, 1], s=size, color=c, zorder=3, label=label)
+        side.scatter(p[sel, 1], p[sel, 2], s=size, color=c, zorder=3)
         for k in range(3):
-            axes_t[k].scatter(t[sel], p[sel, k], s=6, color=c, zorder=3)
+            axes_t[k].scatter(t[sel], p[sel, k], s=size, color=c, zorder=3)
     top.legend(fontsize=8)
     side.set_title(f"side view; {name} poses by status")
 
