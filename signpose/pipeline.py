@@ -52,6 +52,7 @@ from signpose.frontend.detector import (
 from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.frontend.sign import ALL_CODES
 from signpose.io import mcap as mcap_io
+from signpose.io.groundtruth import check_time_overlap, read_ground_truth
 from signpose.io.observations import append_observation
 from signpose.io.results import (
     compare_dir,
@@ -63,7 +64,6 @@ from signpose.io.results import (
 )
 from signpose.io.rosbag_write import ResultBag, write_result_bag
 from signpose.io.sources import Frame, FrameSource, PrefetchedFrame, open_source, prefetch
-from signpose.io.tum import read_tum
 from signpose.maps.loader import SignMap, bundled_map_path, load_map
 from signpose.plots import PlotData, pose_errors, write_plots
 from signpose.report_html import write_run_report
@@ -173,6 +173,7 @@ class RunSettings:
         ros2_bag: write ``result_bag/``, a rosbag2 folder for ROS 2 tools.
         start_ns: first frame's time of a video or ``fps`` folder [ns since 1970];
             None: the video's own creation_time, else 0.
+        gt_offset_s: added to the ground truth's stamps [s] (``--gt-offset``).
     """
 
     observe: ObserveSettings = field(default_factory=ObserveSettings)
@@ -182,6 +183,7 @@ class RunSettings:
     mcap: bool = True
     ros2_bag: bool = False
     start_ns: int | None = None
+    gt_offset_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -942,7 +944,7 @@ def run(
     t_start = time.perf_counter()
     out = ensure_dir(out_dir)
     flight = _Flight(input_path, topic, fps, s.start_ns)
-    gt = read_tum(gt_path) if gt_path is not None else None
+    gt = read_ground_truth(gt_path, s.gt_offset_s) if gt_path is not None else None
     source = flight.open()
     cam = _camera_for(source, camera)
     obs = observe(
@@ -952,6 +954,7 @@ def run(
         if echo is not None:
             echo(f"warning: {line}")
     check_codes_seen(obs.frames, sign_map, str(source.path))
+    _check_gt_overlap(obs.frames, source.path, gt, gt_path)
     t0 = time.perf_counter()
     estimate = estimate_trajectories(list(obs.frames), sign_map, cam, s.estimator, progress)
     timing = {**obs.timing_s, "estimate": time.perf_counter() - t0}
@@ -962,7 +965,7 @@ def run(
     files += _write_run_files(
         out, s, flight, sign_map, cam, obs, estimate, trajs, sigmas, gt, progress, source.frame_id
     )
-    comparison, table = _compare(out, Path(gt_path)) if gt_path is not None else (None, "")
+    comparison, table = _compare(out, gt_path, s.gt_offset_s)
     timing["outputs"] = time.perf_counter() - t0
     timing["total"] = time.perf_counter() - t_start
     n = len(obs.frames)
@@ -1074,9 +1077,18 @@ def position_rmse(traj: Trajectory, gt: Trajectory) -> float:
     return float(np.sqrt(np.mean(dp**2))) if len(dp) else float("nan")
 
 
-def _compare(out: Path, gt_path: Path) -> tuple[dict, str]:
+def _compare(out: Path, gt_path, gt_offset_s: float) -> tuple[dict | None, str]:
     """The estimator's comparison (added to report.json): (method -> metrics, table)."""
-    return compare_dir(out, gt_path), metrics_table(out)
+    if gt_path is None:
+        return None, ""
+    return compare_dir(out, Path(gt_path), gt_offset_s), metrics_table(out)
+
+
+def _check_gt_overlap(frames, source_path, gt: Trajectory | None, gt_path) -> None:
+    """Before estimating: InputError when the ground truth misses the frames' times."""
+    if gt is not None:
+        stamps_s = np.array([f.stamp_ns for f in frames], float) * 1e-9
+        check_time_overlap(stamps_s, source_path, gt, gt_path)
 
 
 def _add_to_report(path: Path, key: str, section: dict) -> None:

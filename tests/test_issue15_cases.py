@@ -16,6 +16,7 @@ import time
 import numpy as np
 import pytest
 from signpose.estimator.camera import pinhole_camera
+from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import MAX_MAP_BYTES, bundled_map_path, load_map
 
 from signpose.cli import EXIT_TERMINATED
@@ -25,6 +26,9 @@ from signpose.core import fileio
 from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_path, atomic_write
 from signpose.io.camera_file import write_camera_info
+from signpose.io.groundtruth import check_time_overlap
+from signpose.io.results import read_report
+from signpose.io.tum import write_tum
 
 
 def _one_line(exc: pytest.ExceptionInfo, path, *parts: str) -> None:
@@ -184,3 +188,54 @@ def test_sigterm_cleans_up_like_ctrl_c_and_exits_143(tmp_path, monkeypatch, caps
     assert "terminated (SIGTERM)" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []  # no half-written file, no temporary
     assert signal.getsignal(signal.SIGTERM) is before  # the handler is the command's only
+
+
+# --------------------------------------------------------------------------- #14 ground truth time
+
+
+def _trajectory(stamps_s: np.ndarray) -> Trajectory:
+    n = len(stamps_s)
+    positions = np.column_stack([np.linspace(0.0, 5.0, n), np.zeros(n), np.full(n, 10.0)])
+    return Trajectory(np.asarray(stamps_s, float), positions, np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)))
+
+
+def _estimate_folder(tmp_path) -> tuple:
+    out = tmp_path / "est"
+    out.mkdir()
+    stamps = np.arange(40) / 30.0
+    write_tum(out / "smoothed.tum", _trajectory(stamps))
+    write_tum(out / "pnp.tum", _trajectory(stamps[10:]))
+    return out, stamps
+
+
+def test_compare_with_a_ground_truth_on_another_clock_exits_2_naming_both(tmp_path, capsys):
+    out, stamps = _estimate_folder(tmp_path)
+    gt = tmp_path / "groundtruth.tum"
+    write_tum(gt, _trajectory(stamps + 1_733_000_000.0))  # epoch vs. from 0
+    code = cli_main(["compare", str(out), "--gt", str(gt)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err
+    for part in (str(gt), str(out), "1733000000.000 to 1733000001.300 s", "0.000 to 1.300 s"):
+        assert part in err
+    assert "--gt-offset SECONDS" in err and "-1733000000.000" in err
+    assert not (out / "report.json").exists()
+
+
+def test_gt_offset_shifts_the_ground_truth_onto_the_trajectory(tmp_path, capsys):
+    out, stamps = _estimate_folder(tmp_path)
+    gt = tmp_path / "groundtruth.tum"
+    write_tum(gt, _trajectory(stamps + 1_733_000_000.0))
+    code = cli_main(["compare", str(out), "--gt", str(gt), "--gt-offset", "-1733000000"])
+    assert code == 0
+    methods = read_report(out / "report.json")["metrics"]["methods"]
+    assert methods["smoothed"]["ate_rmse_m"] == pytest.approx(0.0, abs=1e-6)
+    assert "smoothed" in capsys.readouterr().out
+
+
+def test_a_ground_truth_covering_under_half_the_flight_is_refused(tmp_path):
+    stamps = np.arange(40) / 30.0
+    gt = _trajectory(stamps[:15])  # 14 of 39 intervals: 36 %
+    with pytest.raises(InputError) as exc:
+        check_time_overlap(stamps, "flight.mp4", gt, "gt.tum")
+    _one_line(exc, "gt.tum", "36% of it covered", "15 shared stamps")
+    check_time_overlap(stamps, "flight.mp4", _trajectory(stamps[:30]), "gt.tum")  # 74 %: fine

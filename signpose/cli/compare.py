@@ -17,10 +17,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("dir", type=Path, help="output folder of 'signpose estimate'")
     p.add_argument("--gt", required=True, type=Path, help="ground-truth TUM file")
+    p.add_argument(
+        "--gt-offset",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="added to the ground truth's stamps (a known shift between the two clocks)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    compare_dir(args.dir, args.gt)
+    compare_dir(args.dir, args.gt, args.gt_offset)
     print(metrics_table(args.dir))
     return 0

@@ -31,6 +31,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", type=Path, help="camera file (default: the log's calibration)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--gt", type=Path, help="ground truth TUM: compare and print the table")
+    p.add_argument(
+        "--gt-offset",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="added to the ground truth's stamps (a known shift between the two clocks)",
+    )
     p.add_argument("--with-images", action="store_true", help="put the images into result.mcap")
     p.add_argument("--topic", help="MCAP image topic (needed when the log has several)")
     p.add_argument("--fps", type=float, help="frame rate of an image folder without frames.csv")
@@ -118,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         plots=not args.no_plots,
         ros2_bag=args.ros2_bag,
         start_ns=parse_start_time(args.start_time) if args.start_time is not None else None,
+        gt_offset_s=args.gt_offset,
     )
     # Through the module, so that a test's stand-in for pipeline.run is seen.
     result = pipeline.run(

@@ -44,6 +44,7 @@ from signpose.estimator.estimate import EstimateResult, MethodEstimate
 from signpose.estimator.metrics import compute_metrics, format_table
 from signpose.estimator.status import PoseStatus
 from signpose.estimator.trajectory import Trajectory, quat_xyzw_from_rotation
+from signpose.io.groundtruth import check_time_overlap, read_ground_truth
 from signpose.io.tum import read_tum, write_tum
 
 CSV_HEADER = (
@@ -302,18 +303,30 @@ def method_files(out_dir: str | Path, exclude: str | Path | None = None) -> dict
     return ranked
 
 
-def compare_dir(out_dir: str | Path, gt_path: str | Path) -> dict[str, dict]:
+def compare_dir(
+    out_dir: str | Path, gt_path: str | Path, gt_offset_s: float = 0.0
+) -> dict[str, dict]:
     """Metrics of every method in ``out_dir`` against ``gt_path``; added to report.json.
+
+    Args:
+        out_dir: an estimate folder.
+        gt_path: ground truth TUM file.
+        gt_offset_s: added to the ground truth's stamps [s] (``--gt-offset``).
 
     Returns:
         method -> Metrics.to_dict(); report.json gets a ``"metrics"`` entry
         (rewritten atomically; created if missing) whose table has each
         method's pose status shares when report.json records them.
+
+    Raises:
+        InputError: the ground truth shares no stamps with the trajectories or
+            covers under half of their time span (both ranges in the message).
     """
-    gt = read_tum(gt_path)
-    metrics = {
-        name: compute_metrics(read_tum(p), gt) for name, p in method_files(out_dir, gt_path).items()
-    }
+    gt = read_ground_truth(gt_path, gt_offset_s)
+    trajs = {name: read_tum(p) for name, p in method_files(out_dir, gt_path).items()}
+    stamps_s = np.concatenate([t.stamps_s for t in trajs.values()])
+    check_time_overlap(stamps_s, f"{out_dir} ({', '.join(trajs)})", gt, gt_path)
+    metrics = {name: compute_metrics(t, gt) for name, t in trajs.items()}
     out = {name: m.to_dict() for name, m in metrics.items()}
     report_path = Path(out_dir) / "report.json"
     report = read_report(report_path) if report_path.exists() else {}
