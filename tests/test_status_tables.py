@@ -24,6 +24,7 @@ from signpose.io.results import (
     write_outputs,
 )
 from signpose.io.tum import write_tum
+from signpose.pipeline import RunResult
 from signpose.plots import STATUS_COLORS, PlotData, plot_signs_per_frame, plot_views
 
 BRIDGED_FRAMES = (14, 15, 16)  # frames without any sign: bridged by the motion prior
@@ -175,3 +176,47 @@ def test_plots_colour_poses_by_status(tmp_path):
     assert not _has_colour(tmp_path / "views_ok.png", suspect)
     assert not _has_colour(tmp_path / "signs_ok.png", suspect)
     assert _has_colour(tmp_path / "signs_ok.png", STATUS_COLORS["ok"])
+
+
+def test_run_flight_keeps_the_runs_status_shares_and_errors(tmp_path, monkeypatch):
+    gt_metrics = {
+        "mae_xyz_m": [0.01, 0.02, 0.03],
+        "ate_rmse_m": 0.05,
+        "ate_rmse_aligned_m": 0.04,
+        "rot_rmse_deg": 0.5,
+    }
+
+    def fake_run(input_path, sign_map, out_dir, **kw):
+        return RunResult(
+            out_dir=out_dir,
+            n_frames=20,
+            coverage={"smoothed": 1.0},
+            position_rmse_m={"smoothed": 0.05},
+            comparison={"smoothed": gt_metrics},
+            comparison_table="",
+            timing_s={"total": 1.0},
+            fps=20.0,
+            problems=(),
+            files=(),
+            status={"smoothed": {"ok": 0.85, "weak": 0.0, "bridged": 0.15}},
+        )
+
+    monkeypatch.setattr(batch, "run", fake_run)
+    (tmp_path / "video.mp4").write_bytes(b"")
+    job = batch.FlightJob(
+        flight="f",
+        input_path=str(tmp_path / "video.mp4"),
+        map_path=str(bundled_map_path()),
+        out_dir=str(tmp_path / "out"),
+    )
+    outcome = batch.run_flight(job)
+    assert outcome.status is batch.FlightStatus.OK, outcome.message
+    assert outcome.bridged("smoothed") == 3
+    assert outcome.errors["smoothed"] == {
+        "mae_x_m": 0.01,
+        "mae_y_m": 0.02,
+        "mae_z_m": 0.03,
+        "ate_aligned_m": 0.04,
+        "rot_rmse_deg": 0.5,
+    }
+    assert batch.read_done(tmp_path / "out").pose_status == outcome.pose_status
