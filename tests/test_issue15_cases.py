@@ -11,6 +11,8 @@ import errno
 import json
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -239,3 +241,39 @@ def test_a_ground_truth_covering_under_half_the_flight_is_refused(tmp_path):
         check_time_overlap(stamps, "flight.mp4", gt, "gt.tum")
     _one_line(exc, "gt.tum", "36% of it covered", "15 shared stamps")
     check_time_overlap(stamps, "flight.mp4", _trajectory(stamps[:30]), "gt.tum")  # 74 %: fine
+
+
+# ------------------------------------------------------------------ #19 killed runs' temporaries
+
+
+def _dead_pid() -> int:
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+def test_the_next_run_removes_a_killed_runs_temporaries(tmp_path):
+    dead = _dead_pid()
+    stale = tmp_path / f".observations.jsonl.{dead}.abcd1234.tmp"
+    stale_plot = tmp_path / f".views.{dead}.wxyz_987.png"
+    live = tmp_path / f".trajectory.csv.{os.getpid()}.abcd1234.tmp"  # a writer still running
+    other = tmp_path / ".hidden.tmp"  # not a signpose temporary
+    for p in (stale, stale_plot, live, other):
+        p.write_text("x")
+    with atomic_write(tmp_path / "observations.jsonl") as f:  # its own leftovers first
+        f.write("{}\n")
+    assert not stale.exists() and stale_plot.exists()
+    fileio.ensure_dir(tmp_path)  # a run's output folder: every dead writer's leftover
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == sorted([live.name, other.name, "observations.jsonl"])
+
+
+def test_temporary_names_carry_the_writers_pid(tmp_path):
+    seen = []
+    with atomic_path(tmp_path / "views.png") as tmp:
+        seen.append(tmp.name)
+        tmp.write_bytes(b"png")
+    with atomic_write(tmp_path / "a.tum") as f:
+        seen += [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+        f.write("x")
+    assert all(f".{os.getpid()}." in name for name in seen) and len(seen) == 2

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -36,6 +37,55 @@ def output_error(target: Path, exc: OSError) -> OutputError:
     return OutputError(f"{target}: cannot write ({reason}); {hint}")
 
 
+# Temporary names carry the writer's process id, ``.<name>.<pid>.<random>[.tmp|<suffix>]``,
+# so that a later run can tell a killed run's leftovers from a live writer's file.
+_TEMP_NAME = re.compile(r"^\.(?P<base>.+)\.(?P<pid>\d+)\.[a-z0-9_]{8}(\.[^.]*)?$")
+
+
+def _temp_prefix(name: str) -> str:
+    return f".{name}.{os.getpid()}."
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: another user's live process
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder: str | os.PathLike, base: str | None = None) -> list[Path]:
+    """Remove the temporaries that writers killed before their rename left in ``folder``.
+
+    Only files named as ``atomic_write``/``atomic_path`` name them whose
+    process no longer runs (SIGKILL, a power cut); a live writer's file stays.
+
+    Args:
+        folder: the output folder.
+        base: only the temporaries of this output name (``observations.jsonl``
+            for atomic_write's, its stem for atomic_path's); None: all.
+
+    Returns:
+        The files removed.
+    """
+    removed = []
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(folder):
+            m = _TEMP_NAME.match(entry.name)
+            if m is None or (base is not None and m["base"] != base):
+                continue
+            if not entry.is_file(follow_symlinks=False) or _pid_alive(int(m["pid"])):
+                continue
+            with contextlib.suppress(OSError):
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+    return removed
+
+
 def _refuse_folder(target: Path) -> None:
     if target.is_dir():
         raise OutputError(f"{target}: is a folder; name a file inside it or remove the folder")
@@ -60,6 +110,7 @@ def ensure_dir(path: str | os.PathLike) -> Path:
         raise OutputError(f"{p}: cannot create output folder ({exc.strerror})") from None
     if not os.access(p, os.W_OK):
         raise OutputError(f"{p}: output folder is not writable; choose another --out")
+    remove_stale_temporaries(p)
     return p
 
 
@@ -73,8 +124,9 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator
     target = Path(path)
     _refuse_folder(target)
     parent = target.parent if str(target.parent) else Path(".")
+    remove_stale_temporaries(parent, target.name)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent)
+        fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(target.name), suffix=".tmp", dir=parent)
     except OSError as exc:
         raise output_error(target, exc) from None
     try:
@@ -123,8 +175,11 @@ def atomic_path(path: str | os.PathLike) -> contextlib.AbstractContextManager[Pa
 def _atomic_path(target: Path) -> Iterator[Path]:
     _refuse_folder(target)
     parent = target.parent if str(target.parent) else Path(".")
+    remove_stale_temporaries(parent, target.stem)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=target.suffix, dir=parent)
+        fd, tmp = tempfile.mkstemp(
+            prefix=_temp_prefix(target.stem), suffix=target.suffix, dir=parent
+        )
     except OSError as exc:
         raise output_error(target, exc) from None
     os.close(fd)
