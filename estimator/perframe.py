@@ -161,6 +161,10 @@ def _correspondences(
                 sig_m.append(sign.sigma_m)
     world_a = np.asarray(world, dtype=float).reshape(-1, 3)
     px = undistort_px(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
+    # The solvers here read only fx, fy, cx, cy (as cv2.solvePnP does): take the
+    # skew term K[0, 1] * y off, so that px is the skew-free pinhole image.
+    if camera.K[0, 1] != 0.0:
+        px[:, 0] -= camera.K[0, 1] * (px[:, 1] - camera.cy) / camera.fy
     return _Correspondences(
         codes, names, world_a, px, np.asarray(sig_px, float), np.asarray(sig_m, float)
     )
