@@ -97,13 +97,19 @@ class SmootherSettings:
     Attributes:
         huber_k: Huber threshold on the whitened 2-D residual norm; 2.45 keeps
             95 % of Gaussian inliers at full weight (chi with 2 dof).
-        landmarks: ``"rigid"`` (the default: one point per sign centre with the
-            survey prior, its keypoints tied to it at the map's offsets by
-            ``rigid_tie_sigma_m``: the sign moves as one body, its orientation
-            the map's; batch only, iSAM2's causal pass keeps keypoints),
-            ``"keypoints"`` (each keypoint a point with the survey prior
-            ``sigma_m``) or ``"fixed"`` (the survey as exact: priors of
-            ``fixed_sigma_m``). Rigid: on the three paper-like flights at
+        landmarks: ``"keypoints"`` (the default: each keypoint a point with
+            the survey prior ``sigma_m``), ``"rigid"`` (one point per sign
+            centre with the survey prior, its keypoints tied to it at the map's
+            offsets by ``rigid_tie_sigma_m``: the sign moves as one body, its
+            orientation and size the map's; batch only, iSAM2's causal pass
+            keeps keypoints) or ``"fixed"`` (the survey as exact: priors of
+            ``fixed_sigma_m``). Not rigid by default: with the sign's size held
+            exact, a size bias of 0.01-0.02 px in the decoded keypoints moves
+            each sign along its normal by millimetres (upper and lower signs
+            opposite ways), which tilts map and trajectory together: the demo
+            flight's smoothed positions were offset by 4 cm (ATE 0.041 m,
+            aligned 0.005 m; keypoints 0.007 m). Rigid: on the three
+            paper-like flights at
             0.3 px with a survey error of N(0, sigma_m) per sign, position RMSE
             0.119/0.050/0.077 m with keypoint landmarks, 0.077/0.034/0.061 m
             rigid, 2-sigma share 72-92 % -> 97-99 %; with an exact survey
@@ -158,7 +164,7 @@ class SmootherSettings:
     """
 
     huber_k: float = 2.45
-    landmarks: str = RIGID
+    landmarks: str = KEYPOINTS
     rigid_tie_sigma_m: float = 1e-5
     fixed_sigma_m: float = 1e-6
     kernel: str = HUBER

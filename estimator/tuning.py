@@ -37,7 +37,11 @@ class TuningSettings:
 
     Attributes:
         position_grid: candidates for ``cv_sigma_acc`` [m/s^2/sqrt(Hz)]
-            (``rw_sigma_pos`` [m/sqrt(s)] with the random-walk prior).
+            (``rw_sigma_pos`` [m/sqrt(s)] with the random-walk prior). Up to
+            512: a fast manoeuvre within a few frames (a 12-frame
+            climb-hover-depart) needs 64; at 8 the prior outweighed the
+            Huber-bounded pixels and the final Tukey solve then dropped every
+            observation (smoothed 4.8 m off, PnP exact).
         rotation_grid: candidates for the rotation density [rad/s/sqrt(Hz)];
             empty (the default) keeps the settings' value. Measured on the
             fault scenario (seeds 0, 1) and the three paper-like flights at
@@ -53,12 +57,14 @@ class TuningSettings:
             on four but lost on orbit (0.026 -> 0.042 m).
         holdout_every: every this many observed frames one is held out.
         cap_chi2: whitened squared residuals are capped at this.
-        min_frames: flights with fewer observed frames keep the default.
+        min_frames: with the held-out criterion, flights with fewer observed
+            frames keep the default (the evidence needs no held-out frames and
+            is used on any flight of at least 3 observed frames).
         max_frames: longer flights are tuned on their middle this many frames
             (each candidate is one batch solve).
     """
 
-    position_grid: tuple[float, ...] = (0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
+    position_grid: tuple[float, ...] = tuple(0.125 * 2.0**k for k in range(13))  # 0.125 .. 512
     rotation_grid: tuple[float, ...] = ()
     criterion: str = EVIDENCE
     holdout_every: int = 5
@@ -172,7 +178,8 @@ def tune_motion_prior(
     default_pos, default_rot = getattr(settings, pos_name), getattr(settings, rot_name)
     observed = np.unique(meas.frame)
     base = replace(settings, kernel=HUBER, compute_sigmas=False)
-    if len(observed) < tuning.min_frames:
+    too_short = tuning.min_frames if tuning.criterion == HOLDOUT else 3
+    if len(observed) < too_short:
         return MotionChoice(settings, default_pos, default_rot, default_pos, default_rot, (), 0)
     held_frames = observed[tuning.holdout_every // 2 :: tuning.holdout_every]
     held = np.isin(meas.frame, held_frames)

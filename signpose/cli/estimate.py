@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--map-fixed",
         action="store_true",
-        help="treat the survey as exact (default: each sign a rigid body with its sigma_m)",
+        help="treat the survey as exact (default: each keypoint with its sign's sigma_m)",
     )
     p.add_argument(
         "--fixed-motion-prior",
