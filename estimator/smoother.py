@@ -614,6 +614,18 @@ def _optimize(
     return result, 0, weights
 
 
+def _lm_params(b: _GraphBuilder) -> gtsam.LevenbergMarquardtParams:
+    """Levenberg-Marquardt settings of a batch solve: segmented order, the settings' limits."""
+    s, n = b.s, b.m.n_frames
+    params = gtsam.LevenbergMarquardtParams()
+    params.setOrdering(
+        b.ordered(segmented_ordering(n, len(b.m.landmark_code), s.motion, s.segment_frames))
+    )
+    params.setMaxIterations(s.lm_max_iterations)
+    params.setRelativeErrorTol(s.lm_rel_tol)
+    return params
+
+
 def smooth_batch(
     meas: Measurements,
     stamps_s: np.ndarray,
@@ -629,12 +641,7 @@ def smooth_batch(
     b = _GraphBuilder(meas, stamps_s, camera, s)
     g = _batch_graph(b, _fill_initial(init_world_T_cam, default_world_T_cam), stamps_s)
     t_build = time.perf_counter() - t0
-    params = gtsam.LevenbergMarquardtParams()
-    params.setOrdering(
-        b.ordered(segmented_ordering(n, len(meas.landmark_code), s.motion, s.segment_frames))
-    )
-    params.setMaxIterations(s.lm_max_iterations)
-    params.setRelativeErrorTol(s.lm_rel_tol)
+    params = _lm_params(b)
     params.setAbsoluteErrorTol(1e-9)
     result, iterations, weights = _optimize(g, params, s)
     seconds = time.perf_counter() - t0
@@ -693,16 +700,7 @@ def chain_ordering(n_frames: int, n_landmarks: int, motion: str) -> gtsam.Orderi
     which COLAMD does not find on long flights (measured: 10,000 frames took
     98 s with COLAMD).
     """
-    order = gtsam.Ordering()
-    for i in range(n_frames):
-        order.push_back(X(i))
-        if motion == CONSTANT_VELOCITY:
-            order.push_back(V(i))
-    if motion == CONSTANT_VELOCITY:
-        order.push_back(BIAS_KEY)
-    for j in range(n_landmarks):
-        order.push_back(L(j))
-    return order
+    return _frames_then_landmarks(range(n_frames), n_landmarks, motion)
 
 
 def segmented_ordering(
@@ -719,6 +717,11 @@ def segmented_ordering(
     12.6 s CPU in one chain, 2.3 s with 300-frame segments).
     """
     frames = _dissect(list(range(n_frames)), max(int(segment), 2))
+    return _frames_then_landmarks(frames, n_landmarks, motion)
+
+
+def _frames_then_landmarks(frames: Sequence[int], n_landmarks: int, motion: str) -> gtsam.Ordering:
+    """Each frame's keys in the order of ``frames``, the velocity bias, then the landmarks."""
     order = gtsam.Ordering()
     for i in frames:
         order.push_back(X(i))
@@ -1067,14 +1070,8 @@ def log_evidence(
     s = replace(settings, compute_sigmas=False)
     b = _GraphBuilder(meas, stamps_s, camera, s)
     g = _batch_graph(b, _fill_initial(init_world_T_cam, default_world_T_cam), stamps_s)
-    params = gtsam.LevenbergMarquardtParams()
     n = meas.n_frames
-    params.setOrdering(
-        b.ordered(segmented_ordering(n, len(meas.landmark_code), s.motion, s.segment_frames))
-    )
-    params.setMaxIterations(s.lm_max_iterations)
-    params.setRelativeErrorTol(s.lm_rel_tol)
-    result, _, _ = _optimize(g, params, s)
+    result, _, _ = _optimize(g, _lm_params(b), s)
     order = b.ordered(chain_ordering(n, len(meas.landmark_code), s.motion))
     tree = g.graph.linearize(result).eliminateMultifrontal(order)
     log_det_motion = 0.0
@@ -1137,13 +1134,8 @@ def solve_map(
             g.values.update(S(k), c + sign_shift_m[k])
         for j, k in enumerate(sign):
             g.values.update(L(j), meas.landmark_world[j] + sign_shift_m[k])
-    params = gtsam.LevenbergMarquardtParams()
     n = meas.n_frames
-    order = segmented_ordering(n, len(meas.landmark_code), s.motion, s.segment_frames)
-    params.setOrdering(b.ordered(order))
-    params.setMaxIterations(s.lm_max_iterations)
-    params.setRelativeErrorTol(s.lm_rel_tol)
-    result, _, _ = _optimize(g, params, s)
+    result, _, _ = _optimize(g, _lm_params(b), s)
     codes = tuple(sorted(set(meas.landmark_code)))
     tree = g.graph.linearize(result).eliminateMultifrontal(
         b.ordered(chain_ordering(n, len(meas.landmark_code), s.motion))
