@@ -513,15 +513,7 @@ def gate_measurements(
     sel = have[meas.frame]
     pred = project(camera, poses[meas.frame[sel]], meas.landmark_world[meas.landmark[sel]])
     gated[np.nonzero(sel)[0]] = np.linalg.norm(pred - meas.px[sel], axis=1) > gate_px
-    keep = ~gated
-    kept = replace(
-        meas,
-        frame=meas.frame[keep],
-        landmark=meas.landmark[keep],
-        px=meas.px[keep],
-        sigma_px=meas.sigma_px[keep],
-        sign_index=meas.sign_index[keep],
-    )
+    kept = meas.subset(~gated)
     return kept, gated
 
 
@@ -535,18 +527,6 @@ class _SmoothedRun:
     rejected: tuple[Rejection, ...]
     motion: MotionChoice | None
     timing_s: dict[str, float]
-
-
-def _subset(meas: Measurements, keep: np.ndarray) -> Measurements:
-    """The measurements where ``keep`` (M,) is True."""
-    return replace(
-        meas,
-        frame=meas.frame[keep],
-        landmark=meas.landmark[keep],
-        px=meas.px[keep],
-        sigma_px=meas.sigma_px[keep],
-        sign_index=meas.sign_index[keep],
-    )
 
 
 def _rejections(
@@ -609,7 +589,7 @@ def _innovation_rounds(
                 p.meas, p.frames, ids, RejectionTest.INNOVATION, np.full(len(ids), chi2), threshold
             )
         init = list(r.world_T_cam)
-        r = smooth_batch(_subset(p.meas, active), p.stamps, init, p.camera, smoother, p.default)
+        r = smooth_batch(p.meas.subset(active), p.stamps, init, p.camera, smoother, p.default)
     return r, rejected
 
 
@@ -624,7 +604,7 @@ def _final_solve(
     if kernel == HUBER:
         return r, []
     smoother = replace(p.s.smoother, kernel=kernel)
-    kept = _subset(p.meas, active)
+    kept = p.meas.subset(active)
     r = smooth_batch(kept, p.stamps, list(r.world_T_cam), p.camera, smoother, p.default)
     ids = np.nonzero(active)[0]
     chi2 = (residuals_px(kept, r, p.camera) / kept.sigma_px) ** 2
@@ -681,7 +661,7 @@ def _smoothed(
     r, by_innovation = _innovation_rounds(p, r, active)
     motion = None
     if s.tune_motion:
-        kept = _subset(meas, active)
+        kept = meas.subset(active)
         motion = tune_motion_prior(
             kept, stamps, r.world_T_cam, camera, s.smoother, p.default, s.tuning
         )
@@ -690,7 +670,7 @@ def _smoothed(
             r = smooth_batch(kept, stamps, list(r.world_T_cam), camera, motion.settings, p.default)
     r, by_kernel = _final_solve(p, r, active)
     timing = {"smoothed": time.perf_counter() - t0, "sigmas": r.sigma_seconds}
-    status = _smoothed_status(_subset(meas, active), r, camera, s.status)
+    status = _smoothed_status(meas.subset(active), r, camera, s.status)
     methods = {"smoothed": _from_smoother("smoothed", stamps, r, status=status)}
     if causal.causal_world_T_cam is not None:
         methods["causal"] = _from_smoother("causal", stamps, causal, causal=True)

@@ -186,16 +186,7 @@ def refine_map(
         poses = r.methods["smoothed"].world_T_cam
         meas = collect_measurements(frames, sign_map, camera)
         _, keep = _sign_shifts(meas, poses, camera, s.smoother.tukey_k)
-        parts.append(
-            replace(
-                meas,
-                frame=meas.frame[keep],
-                landmark=meas.landmark[keep],
-                px=meas.px[keep],
-                sigma_px=meas.sigma_px[keep],
-                sign_index=meas.sign_index[keep],
-            )
-        )
+        parts.append(meas.subset(keep))
         stamps.append(np.array([f.stamp_ns for f in frames], dtype=np.float64) * 1e-9)
         init.append(poses)
     joined, starts = _joined(parts)

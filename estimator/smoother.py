@@ -222,6 +222,17 @@ class Measurements:
     sign_index: np.ndarray
     n_frames: int
 
+    def subset(self, keep: np.ndarray) -> Measurements:
+        """The measurements where ``keep`` (M,) is True (or at indices ``keep``)."""
+        return replace(
+            self,
+            frame=self.frame[keep],
+            landmark=self.landmark[keep],
+            px=self.px[keep],
+            sigma_px=self.sigma_px[keep],
+            sign_index=self.sign_index[keep],
+        )
+
 
 def collect_measurements(
     frames: Sequence[FrameObservations], sign_map: SignMap, camera: CameraModel

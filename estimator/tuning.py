@@ -117,15 +117,7 @@ def _held_out_score(
     cap: float,
 ) -> float:
     """Mean capped whitened squared residual of the held-out measurements."""
-    keep = ~held
-    train = replace(
-        meas,
-        frame=meas.frame[keep],
-        landmark=meas.landmark[keep],
-        px=meas.px[keep],
-        sigma_px=meas.sigma_px[keep],
-        sign_index=meas.sign_index[keep],
-    )
+    train = meas.subset(~held)
     r = smooth_batch(train, stamps_s, init, camera, s, default)
     pred = project(camera, r.world_T_cam[meas.frame[held]], r.landmarks_world[meas.landmark[held]])
     chi2 = np.sum(((pred - meas.px[held]) / meas.sigma_px[held, None]) ** 2, axis=1)
@@ -141,15 +133,7 @@ def _window(
         return meas, stamps_s, init
     a = (n - max_frames) // 2
     keep = (meas.frame >= a) & (meas.frame < a + max_frames)
-    window = replace(
-        meas,
-        frame=meas.frame[keep] - a,
-        landmark=meas.landmark[keep],
-        px=meas.px[keep],
-        sigma_px=meas.sigma_px[keep],
-        sign_index=meas.sign_index[keep],
-        n_frames=max_frames,
-    )
+    window = replace(meas.subset(keep), frame=meas.frame[keep] - a, n_frames=max_frames)
     return window, stamps_s[a : a + max_frames], init[a : a + max_frames]
 
 
