@@ -262,10 +262,12 @@ class DecoderSettings:
             (0.4: about 66 degrees off the sign's normal).
         min_fill: least disc diameter as a fraction of the crop's larger side.
         max_black_frac: a black slot's samples stay below this white fraction.
-        black_slot_level: the mean white fraction of a black slot's middle
+        black_slot_level: the least white fraction of a black slot's middle
             samples stays below this: a dark member over a white slot reads
             a flat gray just above the print's black (0.08-0.1 seen), which
-            must erase the slot rather than read 0.
+            must erase the slot rather than read 0. The least, not the mean:
+            a smudge of dirt over part of a black slot raises some of them,
+            a member hiding a white slot all of them.
         min_white_frac: a white slot's samples stay above this white fraction.
         edge_margin_px: the sign's rim must stay this far inside the crop [px].
         thresholds: binarisations tried in turn until one decodes: "mean"
@@ -503,7 +505,9 @@ def _slot_is_clear(row: list[float], bit: bool, settings: DecoderSettings) -> bo
     centre = row[_N_OFFSETS // 2]
     if bit:
         return centre >= hi and min(row[1:-1]) >= hi - 0.1 and sum(row) / _N_OFFSETS >= hi
-    middle = sum(row[1:-1]) / (_N_OFFSETS - 2)
+    # The least of the middle samples: a member hiding a white slot raises
+    # them all, a smudge of dirt over part of a black slot only some.
+    middle = min(row[1:-1])
     return centre <= lo and max(row) <= lo + 0.1 and middle <= settings.black_slot_level
 
 

@@ -60,6 +60,9 @@ _ON_PART = 0.08
 # above the print's black and match its level outside the rim this well.
 _BAR_ABOVE_BLACK = 0.1
 _BAR_LEVEL_MATCH = 0.2
+# A print-black chord whose bar is this much lighter outside the rim (white
+# fraction) is behind the disc.
+_BEHIND_GAP = 0.08
 # Half the width of a bar that can hide a coded slot (0.16 x 0.21 diameters),
 # less a margin for blur and for a run's angular quantisation [diameters].
 _HIDING_HALF_WIDTH = 0.055
@@ -253,8 +256,12 @@ def dark_bands(
         # counts when it is wide enough to hide a whole coded slot and shows a
         # bar's straight, parallel edges outside the rim.
         wide = _HIDING_HALF_WIDTH <= band.half_width <= _MAX_BAR_HALF_WIDTH
+        # A bar lighter outside the rim than its chord inside shows the disc's
+        # black over it: it lies behind.
         if not (over_white or distinct) and wide:
-            wide = _looks_like_a_bar(gray, image_H_sign, band, black, contrast)
+            wide = level_out - level_in < _BEHIND_GAP and _looks_like_a_bar(
+                gray, image_H_sign, band, black, contrast
+            )
         if over_white or distinct or wide:
             bands.append(Band(band.p0, band.p1, half, in_front=over_white or distinct))
     return bands
