@@ -16,6 +16,7 @@ import numpy as np
 from mcap.writer import Writer
 from tqdm import tqdm
 
+from signpose.core.closing import PublishOnExit
 from signpose.core.errors import OutputError
 from signpose.core.fileio import atomic_path
 from signpose.estimator.camera import CameraModel
@@ -45,7 +46,7 @@ SCENE_TOPIC = "/signpose/scene"
 TF_TOPIC = "/tf"
 
 
-class McapJsonWriter:
+class McapJsonWriter(PublishOnExit):
     """Writes JSON-encoded Foxglove messages to an MCAP file, atomically.
 
     The file appears at ``path`` only on ``close()``; ``abort()`` (or an
@@ -117,17 +118,8 @@ class McapJsonWriter:
         self._file.close()
         self._stack.__exit__(KeyboardInterrupt, KeyboardInterrupt(), None)
 
-    def __enter__(self) -> McapJsonWriter:
-        return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
-
-
-class McapFrameWriter:
+class McapFrameWriter(PublishOnExit):
     """The simulator's ``--format mcap`` output: images, ground truth and the camera.
 
     Implements ``signpose.sim.flight.FrameWriter``. Topics: ``/camera/image/compressed``
@@ -198,15 +190,6 @@ class McapFrameWriter:
 
     def abort(self) -> None:
         self._writer.abort()
-
-    def __enter__(self) -> McapFrameWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 def write_result_mcap(

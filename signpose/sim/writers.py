@@ -24,6 +24,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from signpose.core.closing import PublishOnExit
 from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_path, umask_mode
 from signpose.estimator.camera import CameraModel
@@ -62,26 +63,7 @@ class FrameWriter(Protocol):
     def __exit__(self, exc_type, exc, tb) -> None: ...
 
 
-class _WriterBase:
-    path: Path
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
-
-    def close(self) -> Path:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-    def abort(self) -> None:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-
-class Mp4Writer(_WriterBase):
+class Mp4Writer(PublishOnExit):
     """``video.mp4`` (fourcc mp4v), written to a temporary name and renamed on close."""
 
     def __init__(self, path: Path, fps: float, size: tuple[int, int]):
@@ -111,7 +93,7 @@ class Mp4Writer(_WriterBase):
         self._stack.__exit__(OutputError, OutputError("aborted"), None)
 
 
-class PngWriter(_WriterBase):
+class PngWriter(PublishOnExit):
     """``frames/NNNNNN.png`` plus ``frames/frames.csv`` (filename,stamp_ns), so the folder
     is a ready input for ``signpose run`` without ``--fps``; written into a temporary
     folder that replaces ``frames`` on close."""
