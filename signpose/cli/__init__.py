@@ -20,6 +20,7 @@ from pathlib import Path
 from signpose import __version__
 from signpose.core.errors import SignposeError
 from signpose.frontend.sign import ALL_CODES
+from signpose.pipeline import ObserveSettings
 
 # Subcommand modules, in the order `signpose --help` lists them.
 COMMANDS = (
@@ -176,6 +177,27 @@ def add_cascade(parser: argparse.ArgumentParser) -> None:
         "--cascade",
         type=Path,
         help="detector cascade XML, e.g. from 'signpose train-detector' (default: the bundled one)",
+    )
+
+
+def add_search(parser: argparse.ArgumentParser) -> None:
+    """How the frontend searches a flight's frames (observe, run)."""
+    parser.add_argument("--no-tracking", action="store_true", help="search every full frame")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="detector threads (default: 2 if >1 core); the output does not depend on it",
+    )
+
+
+def observe_settings(args: argparse.Namespace) -> ObserveSettings:
+    """The frontend's settings from --codes, ``add_search``'s options and --cascade."""
+    return ObserveSettings(
+        codes=args.codes,
+        tracking=not args.no_tracking,
+        workers=args.workers,
+        cascade_path=str(args.cascade or ""),
     )
 
 

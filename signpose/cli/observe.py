@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from signpose import pipeline
-from signpose.cli import add_cascade, add_quiet, codes_arg
+from signpose.cli import add_cascade, add_quiet, add_search, codes_arg, observe_settings
 from signpose.core.errors import OutputError
 from signpose.io.camera_file import load_camera
 from signpose.io.sources import open_source
@@ -29,13 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--topic", help="MCAP image topic (needed when the log has several)")
     p.add_argument("--fps", type=float, help="frame rate of an image folder without frames.csv")
     p.add_argument("--codes", type=codes_arg, help="codes to look for, e.g. 0001,0101")
-    p.add_argument("--no-tracking", action="store_true", help="search every full frame")
-    p.add_argument(
-        "--workers",
-        type=int,
-        default=0,
-        help="detector threads (default: 2 if >1 core); the output does not depend on it",
-    )
+    add_search(p)
     add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
@@ -50,12 +44,7 @@ def run(args: argparse.Namespace) -> int:
     source = open_source(args.input, topic=args.topic, fps=args.fps)
     if camera is None:
         camera = source.camera
-    settings = pipeline.ObserveSettings(
-        codes=args.codes,
-        tracking=not args.no_tracking,
-        workers=args.workers,
-        cascade_path=str(args.cascade or ""),
-    )
+    settings = observe_settings(args)
     # Through the module, so that a test's stand-in for pipeline.observe is seen.
     result = pipeline.observe(source, sign_map, camera, settings, args.progress, out_path=args.out)
     n = len(result.frames)

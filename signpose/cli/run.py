@@ -8,13 +8,13 @@ from pathlib import Path
 from typing import TextIO
 
 from signpose import pipeline
-from signpose.cli import add_cascade, add_quiet, codes_arg
+from signpose.cli import add_cascade, add_quiet, add_search, codes_arg, observe_settings
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.smoother import SmootherSettings
 from signpose.io.camera_file import load_camera
 from signpose.io.clock import parse_start_time
 from signpose.maps.loader import load_map
-from signpose.pipeline import STAGES, ObserveSettings, RunResult, RunSettings
+from signpose.pipeline import STAGES, RunResult, RunSettings
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -43,13 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, help="frame rate of an image folder without frames.csv")
     p.add_argument("--codes", type=codes_arg, help="codes to look for (default: the map's)")
     p.add_argument("--solver", choices=("batch", "isam2"), default="batch", help="smoother solver")
-    p.add_argument("--no-tracking", action="store_true", help="search every full frame")
-    p.add_argument(
-        "--workers",
-        type=int,
-        default=0,
-        help="detector threads (default: 2 if >1 core); the output does not depend on it",
-    )
+    add_search(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument(
         "--ros2-bag",
@@ -112,12 +106,7 @@ def run(args: argparse.Namespace) -> int:
     sign_map = load_map(args.map)
     camera = load_camera(args.camera) if args.camera else None
     settings = RunSettings(
-        observe=ObserveSettings(
-            codes=args.codes,
-            tracking=not args.no_tracking,
-            workers=args.workers,
-            cascade_path=str(args.cascade or ""),
-        ),
+        observe=observe_settings(args),
         estimator=EstimatorSettings(
             solver=args.solver, smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)
         ),
