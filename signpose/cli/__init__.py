@@ -180,6 +180,17 @@ def add_cascade(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_gt_offset(parser: argparse.ArgumentParser) -> None:
+    """--gt-offset SECONDS: the ground truth on a shifted clock (compare, run)."""
+    parser.add_argument(
+        "--gt-offset",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="added to the ground truth's stamps (a known shift between the two clocks)",
+    )
+
+
 def add_search(parser: argparse.ArgumentParser) -> None:
     """How the frontend searches a flight's frames (observe, run)."""
     parser.add_argument("--no-tracking", action="store_true", help="search every full frame")

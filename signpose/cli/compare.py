@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from signpose.cli import add_gt_offset
 from signpose.io.results import compare_dir, metrics_table
 
 
@@ -17,13 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("dir", type=Path, help="output folder of 'signpose estimate'")
     p.add_argument("--gt", required=True, type=Path, help="ground-truth TUM file")
-    p.add_argument(
-        "--gt-offset",
-        type=float,
-        default=0.0,
-        metavar="SECONDS",
-        help="added to the ground truth's stamps (a known shift between the two clocks)",
-    )
+    add_gt_offset(p)
     p.set_defaults(func=run)
 
 

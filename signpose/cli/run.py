@@ -8,7 +8,14 @@ from pathlib import Path
 from typing import TextIO
 
 from signpose import pipeline
-from signpose.cli import add_cascade, add_quiet, add_search, codes_arg, observe_settings
+from signpose.cli import (
+    add_cascade,
+    add_gt_offset,
+    add_quiet,
+    add_search,
+    codes_arg,
+    observe_settings,
+)
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.smoother import SmootherSettings
 from signpose.io.camera_file import load_camera
@@ -31,13 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", type=Path, help="camera file (default: the log's calibration)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--gt", type=Path, help="ground truth TUM: compare and print the table")
-    p.add_argument(
-        "--gt-offset",
-        type=float,
-        default=0.0,
-        metavar="SECONDS",
-        help="added to the ground truth's stamps (a known shift between the two clocks)",
-    )
+    add_gt_offset(p)
     p.add_argument("--with-images", action="store_true", help="put the images into result.mcap")
     p.add_argument("--topic", help="MCAP image topic (needed when the log has several)")
     p.add_argument("--fps", type=float, help="frame rate of an image folder without frames.csv")
