@@ -71,6 +71,7 @@ _HIDING_HALF_WIDTH = 0.055
 _MAX_BAR_HALF_WIDTH = 0.2
 # Points along a chord checked for darkness, and the chord's inner extent.
 _N_CHORD = 17
+_CHORD_T = np.linspace(0.0, 1.0, _N_CHORD)
 _CHORD_INNER = 0.47
 # White-part interior grid (fractions of the part, inset from its edges), and
 # the white fraction below which a sample there is covered.
@@ -124,27 +125,43 @@ _RING_POINTS = np.concatenate(
 )
 
 
-def _dark_runs(dark: np.ndarray, level: np.ndarray) -> list[tuple[float, float, float]]:
+def _median(x: list[float]) -> float:
+    """np.median of a short list, without numpy's per-call overhead (most
+    chords between two rim runs are dark: hundreds of calls per frame)."""
+    x = sorted(x)
+    n = len(x)
+    return x[n // 2] if n % 2 else 0.5 * (x[n // 2 - 1] + x[n // 2])
+
+
+def _dark_runs(dark: list[bool], level: list[float]) -> list[tuple[float, float, float]]:
     """(centre angle [rad], half width [rad], mean level) of each circular run of True.
 
-    A ring dark all round is one run of half width pi.
+    A ring dark all round is one run of half width pi. Plain Python: 64
+    samples, three thresholds per hypothesis, where numpy's per-call
+    overhead was most of the rim test's cost.
     """
     n = len(dark)
-    if not dark.any():
+    if not any(dark):
         return []
-    if dark.all():
-        return [(0.0, math.pi, float(level.mean()))]
+    if all(dark):
+        return [(0.0, math.pi, sum(level) / n)]
     # Rotate so that the ring starts on a bright sample: no run wraps.
-    start = int(np.argmin(dark))
-    d = np.roll(dark, -start).astype(np.int8)
-    edges = np.diff(np.concatenate([[0], d, [0]]))
-    begins, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    cum = np.concatenate([[0.0], np.cumsum(np.roll(level, -start))])
+    start = dark.index(False)
+    d = dark[start:] + dark[:start]
+    lv = level[start:] + level[:start]
     step = 2 * math.pi / n
     out = []
-    for b, e in zip(begins.tolist(), ends.tolist(), strict=True):
-        centre = (start + b + (e - b - 1) / 2.0) * step
-        out.append((centre, (e - b) * step / 2.0, float((cum[e] - cum[b]) / (e - b))))
+    b, acc = -1, 0.0
+    for k in range(n + 1):
+        on = k < n and d[k]
+        if on and b < 0:
+            b, acc = k, 0.0
+        if on:
+            acc += lv[k]
+        elif b >= 0:
+            centre = (start + b + (k - b - 1) / 2.0) * step
+            out.append((centre, (k - b) * step / 2.0, acc / (k - b)))
+            b = -1
     return out
 
 
@@ -161,12 +178,14 @@ def _rim_runs(
     seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     frac = (_sample(gray, uv) - black) / max(white - black, 1e-6)
     shape = (len(_RING_RADII), _N_RING)
-    level = frac.reshape(shape).mean(axis=0)
+    level = frac.reshape(shape).mean(axis=0).tolist()
     # Where both rings are seen, the darker of the two decides.
-    worst = np.where(seen, frac, np.inf).reshape(shape).max(axis=0)
-    runs = []
+    worst = np.where(seen, frac, np.inf).reshape(shape).max(axis=0).tolist()
+    runs: list[tuple[float, float, float]] = []
     for t in _RUN_THRESHOLDS:
-        runs += [r for r in _dark_runs(worst <= t, level) if r[1] <= _MAX_RUN_HALF]
+        # A run found again at a lower threshold adds only duplicate pairs.
+        dark = [v <= t for v in worst]
+        runs += [r for r in _dark_runs(dark, level) if r[1] <= _MAX_RUN_HALF and r not in runs]
     return runs
 
 
@@ -229,28 +248,25 @@ def dark_bands(
     runs = _rim_runs(gray, image_H_sign, black, white)
     if len(runs) < 2:
         return []
-    pairs = [(i, j) for i in range(len(runs)) for j in range(i + 1, len(runs))]
-
-    def rim_point(angle: float) -> np.ndarray:
-        return 0.5 * np.array([math.cos(angle), math.sin(angle)])
-
-    ends = [(rim_point(runs[i][0]), rim_point(runs[j][0])) for i, j in pairs]
-    t = np.linspace(0.0, 1.0, _N_CHORD)[:, None]
-    pts = np.concatenate([p0 + t * (p1 - p0) for p0, p1 in ends])
-    keep = (np.hypot(pts[:, 0], pts[:, 1]) < _CHORD_INNER).reshape(len(ends), _N_CHORD)
-    chord = (_sample(gray, _project(image_H_sign, pts)) - black) / contrast
-    chord = chord.reshape(len(ends), _N_CHORD)
+    ii, jj = np.triu_indices(len(runs), 1)
+    angles = np.array([r[0] for r in runs])
+    rim = 0.5 * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    # (pairs, _N_CHORD, 2) chord points, all sampled in one call.
+    pts = rim[ii, None] + _CHORD_T[None, :, None] * (rim[jj] - rim[ii])[:, None]
+    keep = np.hypot(pts[..., 0], pts[..., 1]) < _CHORD_INNER
+    chord = (_sample(gray, _project(image_H_sign, pts.reshape(-1, 2))) - black) / contrast
+    chord = chord.reshape(keep.shape)
+    dark = keep.any(axis=1) & ~((chord > _DARK_FRAC) & keep).any(axis=1)
     bands = []
-    for k, (i, j) in enumerate(pairs):
+    for k in np.flatnonzero(dark).tolist():
+        i, j = int(ii[k]), int(jj[k])
         inner = chord[k][keep[k]]
-        if not len(inner) or (inner > _DARK_FRAC).any():
-            continue
         half = 0.5 * math.sin(min(runs[i][1], runs[j][1]))
-        band = Band(ends[k][0], ends[k][1], half)
+        band = Band(rim[i], rim[j], half)
         over_white = bool(len(white_centres)) and bool(
             (band.distance(white_centres) < _ON_PART).any()
         )
-        level_in, level_out = float(np.median(inner)), 0.5 * (runs[i][2] + runs[j][2])
+        level_in, level_out = _median(inner.tolist()), 0.5 * (runs[i][2] + runs[j][2])
         distinct = level_in > _BAR_ABOVE_BLACK and abs(level_in - level_out) < _BAR_LEVEL_MATCH
         # A bar as black as the print looks the same in front and behind: it
         # counts when it is wide enough to hide a whole coded slot and shows a
