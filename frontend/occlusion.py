@@ -109,10 +109,25 @@ class Band:
         return np.abs((np.asarray(xy) - self.p0) @ n)
 
 
+# cv2.remap refuses maps of SHRT_MAX or more columns: longer point lists are
+# laid out in rows of this many.
+_REMAP_COLS = 4096
+
+
 def _sample(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    m = uv.astype(np.float32).reshape(1, -1, 2)
-    out = cv2.remap(gray, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1).astype(float)
+    """(N,) bilinear gray levels at (N, 2) pixel positions (any N)."""
+    m = uv.astype(np.float32).reshape(-1, 2)
+    n = len(m)
+    if n == 0:
+        return np.zeros(0)
+    cols = min(n, _REMAP_COLS)
+    rows = -(-n // cols)
+    if rows * cols > n:
+        m = np.concatenate([m, np.zeros((rows * cols - n, 2), np.float32)])
+    out = cv2.remap(
+        gray, m.reshape(rows, cols, 2), None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+    )
+    return out.reshape(-1)[:n].astype(float)
 
 
 def _project(h: np.ndarray, xy: np.ndarray) -> np.ndarray:

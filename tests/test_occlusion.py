@@ -123,3 +123,29 @@ def test_sigma_grows_when_a_line_crosses_the_face():
     su, sv = clean.keypoint_sigma_px["center"]
     assert 0.0 < su == sv < 0.1  # a clean 80 px sign: a few hundredths of a pixel
     assert max(r.keypoint_sigma_px["center"][0] for r in crossed) > 2 * su
+
+
+def test_sampling_takes_any_number_of_points():
+    """cv2.remap refuses maps of 32767 columns or more: long point lists still sample."""
+    rng = np.random.default_rng(3)
+    gray = rng.integers(0, 256, (40, 60), dtype=np.uint8)
+    uv = np.concatenate([rng.uniform(0, 59, (40000, 1)), rng.uniform(0, 39, (40000, 1))], 1)
+    uv[:3] = [[0, 0], [59, 39], [10, 20]]
+    vals = occlusion._sample(gray, uv)
+    assert vals.shape == (40000,)
+    assert vals[:3].tolist() == [gray[0, 0], gray[39, 59], gray[20, 10]]
+    assert occlusion._sample(gray, np.zeros((0, 2))).shape == (0,)
+
+
+def test_rim_bands_on_a_ring_of_many_dark_runs_and_a_huge_crop():
+    """A ring of alternating gray levels (many rim runs at every threshold,
+    hundreds of chords) and a sign 1500 px across decode without an exception."""
+    h = np.array([[100.0, 0, 100], [0, -100.0, 100], [0, 0, 1]])
+    yy, xx = np.mgrid[0:200, 0:200]
+    sector = (np.degrees(np.arctan2(100 - yy, xx - 100)) // (360 / 64)).astype(int) % 3
+    gray = np.choose(sector, [20, 60, 230]).astype(np.uint8)
+    gray[np.hypot(xx - 100, yy - 100) < 50] = 20
+    bands = occlusion.dark_bands(gray, h, 20.0, 230.0, True, np.zeros((0, 2)))
+    assert isinstance(bands, list)
+    big = render_crop("0110", np.random.default_rng(4), sign_px=1500.0, background="plain")
+    assert decode_roi(big.image).code in (None, "0110")
