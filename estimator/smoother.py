@@ -97,25 +97,26 @@ class SmootherSettings:
     Attributes:
         huber_k: Huber threshold on the whitened 2-D residual norm; 2.45 keeps
             95 % of Gaussian inliers at full weight (chi with 2 dof).
-        landmarks: ``"keypoints"`` (the default: each keypoint a point with
-            the survey prior ``sigma_m``), ``"rigid"`` (one point per sign
-            centre with the survey prior, its keypoints tied to it at the map's
+        landmarks: ``"rigid"`` (the default: one point per sign centre with
+            the survey prior ``sigma_m``, its keypoints tied to it at the map's
             offsets by ``rigid_tie_sigma_m``: the sign moves as one body, its
-            orientation and size the map's; batch only, iSAM2's causal pass
-            keeps keypoints) or ``"fixed"`` (the survey as exact: priors of
-            ``fixed_sigma_m``). Not rigid by default: with the sign's size held
-            exact, a size bias of 0.01-0.02 px in the decoded keypoints moves
-            each sign along its normal by millimetres (upper and lower signs
-            opposite ways), which tilts map and trajectory together: the demo
-            flight's smoothed positions were offset by 4 cm (ATE 0.041 m,
-            aligned 0.005 m; keypoints 0.007 m). Rigid: on the three
-            paper-like flights at
-            0.3 px with a survey error of N(0, sigma_m) per sign, position RMSE
-            0.119/0.050/0.077 m with keypoint landmarks, 0.077/0.034/0.061 m
-            rigid, 2-sigma share 72-92 % -> 97-99 %; with an exact survey
-            0.046/0.026/0.052 -> 0.031/0.028/0.052 m (fixed: 0.028/0.022/0.052).
-        rigid_tie_sigma_m: sigma of the ties of the rigid model [m] (as
-            ``isam_copy_sigma``: tighter made the Cholesky factor indeterminate).
+            orientation and size the map's up to that tolerance; batch only,
+            iSAM2's causal pass keeps keypoints), ``"keypoints"`` (each
+            keypoint a point with its own survey prior ``sigma_m``) or
+            ``"fixed"`` (the survey as exact: priors of ``fixed_sigma_m``).
+            Rigid, because a surveyed centre's error moves the whole sign:
+            keypoint landmarks treat it as independent per keypoint and claim
+            too little (smoothed 2-sigma share 17-19 % on an axis of two of
+            three paper-like flights with a survey error of N(0, sigma_m) per
+            sign, rigid 97-100 %).
+        rigid_tie_sigma_m: how far a keypoint may sit from its place in the
+            sign's frame [m]: the tolerance of printing and hanging (3 mm is
+            about 0.5 degrees of tilt at the slots' 0.3 m). Not exact: with the
+            sign's size held to 1e-5 m, a 0.01-0.02 px size bias of the decoded
+            keypoints moved upper and lower signs along their normals in
+            opposite ways and tilted the demo's trajectory by 4 cm at 2.8 sigma
+            (smoothed RMSE 0.041 m, aligned 0.005 m); at 3 mm it is 0.008 m
+            (keypoint landmarks 0.007 m, PnP 0.022 m).
         fixed_sigma_m: prior sigma of the fixed map [m].
         kernel: ``"huber"``, ``"tukey"`` (redescending: zero weight beyond
             ``tukey_k``) or ``"gnc"`` (graduated non-convexity, truncated least
@@ -164,8 +165,8 @@ class SmootherSettings:
     """
 
     huber_k: float = 2.45
-    landmarks: str = KEYPOINTS
-    rigid_tie_sigma_m: float = 1e-5
+    landmarks: str = RIGID
+    rigid_tie_sigma_m: float = 3e-3
     fixed_sigma_m: float = 1e-6
     kernel: str = HUBER
     tukey_k: float = 4.685
