@@ -209,6 +209,9 @@ _MIN_DIRECTION_ASPECT = 1.5
 _MAX_CENTRE_SHIFT = 0.1
 # Most erased slots a reading may keep (more is a wrong geometry, not an occluder).
 _MAX_ERASED = 2
+# A white part whose interior is at least this white (least sample) shows
+# nothing in front of it.
+_CLEAN_INSIDE = 0.7
 # Samples this close to a band's edge [diameters] count as under it (blur).
 _SAMPLE_BAND_MARGIN = 0.03
 # Margin around the explained parts when looking for unexplained white:
@@ -1401,13 +1404,21 @@ def _occlusion(
     )
     if outline_intact:
         bands = [b for b in bands if b.in_front]
+    inside_white = occlusion.interior_min_white(
+        g, image_H_sign, _PART_QUADS[white], reading.black, reading.white, np.equal(white, 1)
+    )
+    if bands:
+        # A band whose centre line runs over a white part that shows white
+        # throughout is not in front of it: no evidence of an occluder (on
+        # photographs, dark background beyond the rim joined by a chord).
+        clean = [p for p, m in zip(white, inside_white.tolist(), strict=True) if m >= _CLEAN_INSIDE]
+        if clean:
+            c = _PART_CENTRES[clean]
+            bands = [b for b in bands if not (b.distance(c) < b.half_width).any()]
     band_hits = occlusion.crossed(bands, _PART_CENTRES, _PART_HALF)
     # A white part that shows white throughout is only dropped under a band
     # seen in front (a black bar that may be behind leaves it alone).
     front_hits = occlusion.crossed([b for b in bands if b.in_front], _PART_CENTRES, _PART_HALF)
-    inside_white = occlusion.interior_min_white(
-        g, image_H_sign, _PART_QUADS[white], reading.black, reading.white, np.equal(white, 1)
-    )
     covered = {
         p for p, m in zip(white, inside_white.tolist(), strict=True) if m < occlusion.COVERED_INSIDE
     }
