@@ -1,7 +1,8 @@
 """Pinhole projection of world points and its Jacobian with respect to the camera pose.
 
 Pixels are undistorted (``estimator.camera.undistort_px``), so the model is
-``uv = K pi(cam_R_world (world_p - world_t_cam))``. Pose perturbations follow
+``uv = K pi(cam_R_world (world_p - world_t_cam))`` with the full K (skew
+K[0, 1] included, as ``undistort_px`` keeps it). Pose perturbations follow
 gtsam's ``Pose3`` convention: ``world_T_cam * Exp(xi)`` with
 ``xi = [omega, v]`` (rotation first, both in the camera frame), so a 6x6
 covariance from gtsam and the Jacobians here share one order.
@@ -29,13 +30,24 @@ def cam_points(world_T_cam: np.ndarray, world_p: np.ndarray) -> np.ndarray:
     return (world_p - world_T_cam[:3, 3]) @ world_T_cam[:3, :3]
 
 
+def pixel_from_normalised(camera: CameraModel, xy: np.ndarray) -> np.ndarray:
+    """(N, 2) undistorted pixels of (N, 2) normalised coordinates (x/z, y/z): the full K.
+
+    The skew K[0, 1] is part of K, as in ``estimator.camera.undistort_px``:
+    u = fx * x + s * y + cx, v = fy * y + cy.
+    """
+    K = camera.K
+    x, y = xy[:, 0], xy[:, 1]
+    return np.stack([K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]], axis=1)
+
+
 def pixels_and_jacobians(
     camera: CameraModel, world_T_cam: np.ndarray, world_p: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Projected pixels and their Jacobians, one pose per point.
 
     Args:
-        camera: the camera (only K is used).
+        camera: the camera (only K is used, its skew K[0, 1] included).
         world_T_cam: (K, 4, 4) the pose each point is seen from.
         world_p: (K, 3) world points [m].
 
@@ -47,12 +59,15 @@ def pixels_and_jacobians(
     pc = np.einsum("kji,kj->ki", R, np.asarray(world_p, float).reshape(-1, 3) - t)
     x, y = pc[:, 0], pc[:, 1]
     z = np.maximum(pc[:, 2], MIN_DEPTH_M)
-    uv = np.stack([camera.fx * x / z + camera.cx, camera.fy * y / z + camera.cy], axis=1)
+    uv = pixel_from_normalised(camera, np.stack([x / z, y / z], axis=1))
+    # uv = K[:2] (x/z, y/z, 1): the skew K[0, 1] couples u to y.
+    K = camera.K
     d_pi = np.zeros((len(pc), 2, 3))
-    d_pi[:, 0, 0] = camera.fx / z
-    d_pi[:, 0, 2] = -camera.fx * x / z**2
-    d_pi[:, 1, 1] = camera.fy / z
-    d_pi[:, 1, 2] = -camera.fy * y / z**2
+    d_pi[:, 0, 0] = K[0, 0] / z
+    d_pi[:, 0, 1] = K[0, 1] / z
+    d_pi[:, 0, 2] = -(K[0, 0] * x + K[0, 1] * y) / z**2
+    d_pi[:, 1, 1] = K[1, 1] / z
+    d_pi[:, 1, 2] = -K[1, 1] * y / z**2
     # p_cam(xi) = Exp(-omega) (p_cam - v): d/d omega = [p_cam]x, d/dv = -I.
     skew = np.zeros((len(pc), 3, 3))
     skew[:, 0, 1], skew[:, 0, 2] = -pc[:, 2], pc[:, 1]

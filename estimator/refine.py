@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from signpose.estimator.camera import CameraModel
 from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
+from signpose.estimator.projection import pixels_and_jacobians
 from signpose.estimator.smoother import (
     Measurements,
     collect_measurements,
@@ -119,19 +120,12 @@ def _fit_shift(
     shift = np.zeros(3)
     ok = np.ones(len(ids), bool)
     T = world_T_cam[meas.frame[ids]]
-    R, t = T[:, :3, :3], T[:, :3, 3]
     sig = meas.sigma_px[ids, None]
     norm = np.zeros(len(ids))
     for _ in range(SHIFT_ITERATIONS):
-        pc = np.einsum("mji,mj->mi", R, meas.landmark_world[meas.landmark[ids]] + shift - t)
-        z = np.maximum(pc[:, 2], 1e-9)
-        uv = np.stack(
-            [camera.fx * pc[:, 0] / z + camera.cx, camera.fy * pc[:, 1] / z + camera.cy], 1
-        )
-        d_pi = np.zeros((len(ids), 2, 3))
-        d_pi[:, 0, 0], d_pi[:, 0, 2] = camera.fx / z, -camera.fx * pc[:, 0] / z**2
-        d_pi[:, 1, 1], d_pi[:, 1, 2] = camera.fy / z, -camera.fy * pc[:, 1] / z**2
-        J = np.einsum("mab,mcb->mac", d_pi, R) / sig[:, :, None]  # d(uv)/d(world point)
+        world = meas.landmark_world[meas.landmark[ids]] + shift
+        uv, _, d_point = pixels_and_jacobians(camera, T, world)
+        J = d_point / sig[:, :, None]  # d(uv)/d(world point), whitened
         r = (meas.px[ids] - uv) / sig
         norm = np.linalg.norm(r, axis=1)
         ok = norm < max(k, 3.0 * float(np.median(norm)))

@@ -40,6 +40,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.estimator.projection import pixel_from_normalised
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 from tqdm import tqdm
@@ -1026,14 +1027,12 @@ def smooth_isam2(
 
 
 def project(camera: CameraModel, world_T_cam: np.ndarray, world_points: np.ndarray) -> np.ndarray:
-    """(M, 2) undistorted pixels of (M, 3) points seen from (M, 4, 4) poses (pinhole K)."""
+    """(M, 2) undistorted pixels of (M, 3) points seen from (M, 4, 4) poses (full K, skew too)."""
     R = world_T_cam[:, :3, :3]
     t = world_T_cam[:, :3, 3]
     pc = np.einsum("mji,mj->mi", R, world_points - t)
     z = np.where(np.abs(pc[:, 2]) < 1e-9, 1e-9, pc[:, 2])
-    return np.stack(
-        [camera.fx * pc[:, 0] / z + camera.cx, camera.fy * pc[:, 1] / z + camera.cy], axis=1
-    )
+    return pixel_from_normalised(camera, pc[:, :2] / z[:, None])
 
 
 def residuals_px(meas: Measurements, res: SmootherResult, camera: CameraModel) -> np.ndarray:
