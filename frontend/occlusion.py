@@ -273,14 +273,18 @@ def dark_bands(
     chord = chord.reshape(keep.shape)
     dark = keep.any(axis=1) & ~((chord > _DARK_FRAC) & keep).any(axis=1)
     bands = []
+    centres = white_centres.tolist()
+    rim_l = rim.tolist()
     for k in np.flatnonzero(dark).tolist():
         i, j = int(ii[k]), int(jj[k])
         inner = chord[k][keep[k]]
         half = 0.5 * math.sin(min(runs[i][1], runs[j][1]))
+        # Band.distance in plain floats (this loop runs over every dark chord).
+        (x0, y0), (x1, y1) = rim_l[i], rim_l[j]
+        norm = max(math.hypot(x1 - x0, y1 - y0), 1e-12)
+        nx, ny = -(y1 - y0) / norm, (x1 - x0) / norm
+        over_white = any(abs((cx - x0) * nx + (cy - y0) * ny) < _ON_PART for cx, cy in centres)
         band = Band(rim[i], rim[j], half)
-        over_white = bool(len(white_centres)) and bool(
-            (band.distance(white_centres) < _ON_PART).any()
-        )
         level_in, level_out = _median(inner.tolist()), 0.5 * (runs[i][2] + runs[j][2])
         distinct = level_in > _BAR_ABOVE_BLACK and abs(level_in - level_out) < _BAR_LEVEL_MATCH
         # A bar as black as the print looks the same in front and behind: it
