@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from signpose.estimator.camera import CameraModel
-from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
+from signpose.estimator.estimate import EstimateResult, EstimatorSettings, estimate_trajectories
 from signpose.estimator.projection import pixels_and_jacobians
 from signpose.estimator.smoother import (
     Measurements,
@@ -174,17 +174,57 @@ def refine_map(
     """Solve the flights jointly for the sign centres (see the module docstring)."""
     s = settings or EstimatorSettings()
     s = replace(s, methods=("smoothed",), smoother=replace(s.smoother, compute_sigmas=False))
-    parts, stamps, init = [], [], []
-    for frames in flights:
-        r = estimate_trajectories(frames, sign_map, camera, s, progress=False)
-        poses = r.methods["smoothed"].world_T_cam
+    poses = [
+        estimate_trajectories(frames, sign_map, camera, s, progress=False)
+        .methods["smoothed"]
+        .world_T_cam
+        for frames in flights
+    ]
+    return _solve_flights(flights, poses, sign_map, camera, s)
+
+
+def refine_flight(
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    result: EstimateResult,
+) -> RefinedMap | None:
+    """The refined map from one estimated flight (``map_refined.yaml`` beside its trajectories).
+
+    Starts from the flight's smoothed trajectory (no second robust solve) and
+    solves it with the signs as in ``refine_map``. None without a smoothed
+    trajectory.
+
+    Args:
+        frames: the observations ``result`` was estimated from.
+        sign_map: the survey; camera: the camera.
+        result: ``estimate_trajectories``'s result for ``frames``.
+    """
+    smoothed = result.methods.get("smoothed")
+    if smoothed is None or not np.any(smoothed.valid):
+        return None
+    s = result.settings
+    if result.motion is not None:  # the motion prior chosen from the flight
+        s = replace(s, smoother=result.motion.settings)
+    return _solve_flights([frames], [smoothed.world_T_cam], sign_map, camera, s)
+
+
+def _solve_flights(
+    flights: Sequence[Sequence[FrameObservations]],
+    poses: Sequence[np.ndarray],
+    sign_map: SignMap,
+    camera: CameraModel,
+    s: EstimatorSettings,
+) -> RefinedMap:
+    """The joint solve of flights whose (N, 4, 4) smoothed trajectories are ``poses``."""
+    parts, stamps = [], []
+    for frames, world_T_cam in zip(flights, poses, strict=True):
         meas = collect_measurements(frames, sign_map, camera)
-        _, keep = _sign_shifts(meas, poses, camera, s.smoother.tukey_k)
+        _, keep = _sign_shifts(meas, world_T_cam, camera, s.smoother.tukey_k)
         parts.append(meas.subset(keep))
         stamps.append(np.array([f.stamp_ns for f in frames], dtype=np.float64) * 1e-9)
-        init.append(poses)
     joined, starts = _joined(parts)
-    all_poses = np.concatenate(init)
+    all_poses = np.concatenate(poses)
     shifts, _ = _sign_shifts(joined, all_poses, camera, s.smoother.tukey_k)
     sol = solve_map(joined, np.concatenate(stamps), all_poses, camera, s.smoother, starts, shifts)
     return _refined(sign_map, joined, sol.codes, sol.centres_world, sol.cov_world)

@@ -41,6 +41,7 @@ from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.camera import CameraModel, check_image_size, pixel_from_world_point
 from signpose.estimator.estimate import EstimateResult, EstimatorSettings, estimate_trajectories
 from signpose.estimator.perframe import solve_frame_pnp
+from signpose.estimator.refine import refine_flight
 from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.detector import (
     DetectionResult,
@@ -1005,7 +1006,8 @@ def _write_run_files(
 ) -> list[Path]:
     """The estimator's files, the plots, ``result.mcap`` and the ROS 2 bag, as settings ask."""
     camera_frame = frame_id or mcap_io.CAMERA_FRAME  # the input's own name, if it has one
-    files = [Path(p) for p in write_outputs(out, estimate)]
+    refined = refine_flight(list(obs.frames), sign_map, camera, estimate)
+    files = [Path(p) for p in write_outputs(out, estimate, refined)]
     if s.plots:
         stamps = np.array([f.stamp_ns for f in obs.frames], float) * 1e-9
         map_codes = set(sign_map.codes)

@@ -9,6 +9,7 @@ from pathlib import Path
 from signpose.cli import add_quiet
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
+from signpose.estimator.refine import refine_flight
 from signpose.io.camera_file import load_camera
 from signpose.io.observations import read_observations
 from signpose.io.results import status_line, write_outputs
@@ -21,7 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="camera trajectory from per-frame sign observations",
         description="Estimate the camera trajectory with the paper's per-frame method "
         "(baseline), per-frame PnP and the gtsam smoother; write <method>.tum, "
-        "trajectory.csv and report.json into --out.",
+        "trajectory.csv, report.json and (with the smoother) map_refined.yaml, the map "
+        "refined from the flight, with map_refined.json (posterior sigmas, frames seen) "
+        "into --out.",
     )
     p.add_argument("observations", type=Path, help="observations JSONL")
     p.add_argument("--map", required=True, type=Path, help="sign map YAML")
@@ -89,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
     if args.fixed_motion_prior:
         settings = replace(settings, tune_motion=False)
     result = estimate_trajectories(frames, sign_map, camera, settings, progress=args.progress)
-    written = write_outputs(args.out, result)
+    refined = refine_flight(frames, sign_map, camera, result)
+    written = write_outputs(args.out, result, refined)
     if args.quiet:  # the result and errors only
         print(status_line(result))
         print(f"wrote {len(written)} files into {args.out}")

@@ -10,8 +10,8 @@ from signpose.estimator.estimate import check_inputs
 from signpose.estimator.refine import MOVED_SIGMAS, check_flights_share_signs, refine_map
 from signpose.io.camera_file import load_camera
 from signpose.io.observations import read_observations
-from signpose.io.results import write_json
-from signpose.maps.loader import load_map, write_map
+from signpose.io.results import write_refined_map
+from signpose.maps.loader import load_map
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,18 +41,7 @@ def run(args: argparse.Namespace) -> int:
     for frames, name in zip(flights, names, strict=True):
         check_inputs(frames, sign_map, camera, name)
     refined = refine_map(flights, sign_map, camera)
-    write_map(args.out, refined.sign_map)
-    report = args.out.with_suffix(".json")
-    write_json(
-        report,
-        {
-            "survey": str(args.map),
-            "flights": names,
-            "signs": [s.to_dict() for s in refined.signs],
-            "moved": list(refined.moved),
-            "moved_sigmas": MOVED_SIGMAS,
-        },
-    )
+    _, report = write_refined_map(args.out, refined, str(args.map), names)
     if not args.quiet:
         for s in refined.signs:
             print(

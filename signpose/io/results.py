@@ -1,4 +1,4 @@
-"""The estimate output folder: ``<method>.tum``, ``trajectory.csv`` and ``report.json``.
+"""The estimate output folder: ``<method>.tum``, ``trajectory.csv``, ``report.json``, refined map.
 
 This is the one module that reads and writes ``trajectory.csv`` and
 ``report.json`` (TUM goes through ``signpose.io.tum``). Every file is written
@@ -24,6 +24,11 @@ the test that rejected it: ``pnp_gate``, ``innovation``, ``tukey`` or
 ``gnc``), the motion prior chosen from the flight, and after ``compare_dir``
 the metrics against ground truth (``estimator.metrics.Metrics``: keys carry
 their unit, ``mae_xyz_m``, ``ate_rmse_m``, ``rot_rmse_deg``, ...).
+
+map_refined.yaml (with the smoother): the map refined from the flight, in
+the map schema (``maps/SCHEMA.md``); map_refined.json beside it: per sign the
+posterior sigma, frames seen and the move against the survey
+(``write_refined_map``, also the writer of ``refine-map``).
 """
 
 from __future__ import annotations
@@ -42,10 +47,12 @@ from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.estimate import EstimateResult, MethodEstimate
 from signpose.estimator.metrics import compute_metrics, format_table
+from signpose.estimator.refine import MOVED_SIGMAS, RefinedMap
 from signpose.estimator.status import PoseStatus
 from signpose.estimator.trajectory import Trajectory, quat_xyzw_from_rotation
 from signpose.io.groundtruth import check_time_overlap, read_ground_truth
 from signpose.io.tum import read_tum, write_tum
+from signpose.maps.loader import write_map
 
 CSV_HEADER = (
     "method",
@@ -218,10 +225,43 @@ def write_json(path: Path, data: dict) -> None:
         f.write("\n")
 
 
-def write_outputs(out_dir: str | Path, result: EstimateResult) -> list[Path]:
+REFINED_MAP = "map_refined.yaml"
+
+
+def write_refined_map(
+    path: str | Path, refined: RefinedMap, survey: str, flights: list[str]
+) -> list[Path]:
+    """Write the refined map (map schema, ``path``) and ``<path>.json`` beside it.
+
+    The YAML is a map ``load_map`` reads (refined centres, the map's
+    orientations, posterior sigma_m); the JSON holds per sign its refined and
+    survey centre, posterior sigma, frames seen and how far it moved, and the
+    signs moved by more than ``MOVED_SIGMAS`` survey sigmas. Returns both paths.
+    """
+    path = Path(path)
+    write_map(path, refined.sign_map)
+    report = path.with_suffix(".json")
+    write_json(
+        report,
+        {
+            "survey": survey,
+            "flights": flights,
+            "signs": [s.to_dict() for s in refined.signs],
+            "moved": list(refined.moved),
+            "moved_sigmas": MOVED_SIGMAS,
+        },
+    )
+    return [path, report]
+
+
+def write_outputs(
+    out_dir: str | Path, result: EstimateResult, refined: RefinedMap | None = None
+) -> list[Path]:
     """Write ``<method>.tum`` for every method, trajectory.csv and report.json.
 
-    TUM files hold only the frames with a pose. Returns the paths written.
+    TUM files hold only the frames with a pose. With ``refined`` (see
+    ``estimator.refine.refine_flight``) also ``map_refined.yaml`` and
+    ``map_refined.json``. Returns the paths written.
     """
     out = ensure_dir(out_dir)
     written = []
@@ -236,6 +276,9 @@ def write_outputs(out_dir: str | Path, result: EstimateResult) -> list[Path]:
     p = out / "report.json"
     write_json(p, report_dict(result))
     written.append(p)
+    if refined is not None:
+        survey = refined.sign_map.source or "map"
+        written += write_refined_map(out / REFINED_MAP, refined, survey, [])
     return written
 
 
