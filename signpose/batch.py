@@ -3,12 +3,17 @@
 Each flight gets ``OUT/<flight>/``; a flight is finished when its
 ``.done.json`` marker exists (written last, atomically), so a rerun skips
 it. A failing flight is recorded in the summary and the others go on.
+Ctrl-C or SIGTERM stops the batch at once: the queued flights are cancelled,
+the running ones stopped, and summary.csv lists the finished flights, the
+running ones as ``interrupted`` and the queued ones as ``not_started``
+(neither has a done marker, so a rerun runs them).
 Flights run in a local process pool, or on a Dask distributed cluster
 (``scheduler="tcp://host:port"``, optional extra ``signpose[dask]``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import enum
 import io
@@ -56,6 +61,8 @@ class FlightStatus(enum.StrEnum):
     OK = "ok"
     PARTIAL = "partial"  # input truncated/corrupt: the readable part was processed
     FAILED = "failed"
+    INTERRUPTED = "interrupted"  # running when the batch was stopped (Ctrl-C, SIGTERM)
+    NOT_STARTED = "not_started"  # still queued when the batch was stopped
 
 
 class _Finished(Protocol):
@@ -441,28 +448,75 @@ def _run_jobs(
     runner: Callable[[FlightJob], FlightOutcome],
     jobs: int,
     scheduler: str | None,
+    running: set[str],
 ) -> Iterator[FlightOutcome]:
-    """The flights' outcomes as they finish: on Dask, in a process pool, or one by one."""
+    """The flights' outcomes as they finish: on Dask, in a process pool, or one by one.
+
+    On KeyboardInterrupt (Ctrl-C, SIGTERM) the queued flights are cancelled at
+    once and the flights a worker had started are added to ``running`` (the
+    caller marks them interrupted) before the interrupt goes on.
+    """
     if not todo:
         return
     if scheduler:
-        client = _dask_client(scheduler)
-        try:
-            from dask.distributed import as_completed as dask_completed
-
-            futures = {client.submit(runner, job, pure=False): job for job in todo}
-            for fut in dask_completed(futures):
-                yield _outcome_of(fut, futures[fut])
-        finally:
-            client.close()
+        yield from _run_on_dask(todo, runner, scheduler, running)
     elif jobs <= 1:
         for job in todo:
-            yield runner(job)
+            running.add(job.flight)
+            outcome = runner(job)
+            running.discard(job.flight)
+            yield outcome
     else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            futures = {pool.submit(runner, job): job for job in todo}
+        yield from _run_in_pool(todo, runner, jobs, running)
+
+
+def _run_in_pool(
+    todo: list[FlightJob],
+    runner: Callable[[FlightJob], FlightOutcome],
+    jobs: int,
+    running: set[str],
+) -> Iterator[FlightOutcome]:
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(runner, job): job for job in todo}
+        try:
             for fut in as_completed(futures):
                 yield _outcome_of(fut, futures[fut])
+        except KeyboardInterrupt:
+            # running() is also true of the few calls queued to a worker that has not taken
+            # them yet: those are marked interrupted too (a rerun runs both states).
+            running.update(job.flight for fut, job in futures.items() if fut.running())
+            # Else leaving the pool would first run every running and queued flight to its end.
+            processes = list((getattr(pool, "_processes", None) or {}).values())
+            pool.shutdown(wait=False, cancel_futures=True)
+            for process in processes:  # SIGTERM: a worker cleans up as `signpose run` does
+                with contextlib.suppress(OSError, ValueError):
+                    process.terminate()
+            raise
+
+
+def _run_on_dask(
+    todo: list[FlightJob],
+    runner: Callable[[FlightJob], FlightOutcome],
+    scheduler: str,
+    running: set[str],
+) -> Iterator[FlightOutcome]:
+    client = _dask_client(scheduler)
+    try:
+        from dask.distributed import as_completed as dask_completed
+
+        futures = {client.submit(runner, job, pure=False): job for job in todo}
+        try:
+            for fut in dask_completed(futures):
+                yield _outcome_of(fut, futures[fut])
+        except KeyboardInterrupt:
+            with contextlib.suppress(Exception):  # best effort: the scheduler may be gone
+                busy = {key for keys in client.processing().values() for key in keys}
+                running.update(job.flight for fut, job in futures.items() if fut.key in busy)
+            with contextlib.suppress(Exception):
+                client.cancel(list(futures))
+            raise
+    finally:
+        client.close()
 
 
 def run_batch(
@@ -526,23 +580,45 @@ def run_batch(
         cascade_path=cascade,
     )
     outcomes, todo = _jobs(inputs, names, map_path, out, options, force)
-    bar = tqdm(
-        total=len(inputs),
-        initial=len(outcomes),
-        desc="flights",
-        unit="flight",
-        disable=not progress,
-    )
+    bar = _flights_bar(len(inputs), len(outcomes), progress)
+    running: set[str] = set()
     try:
-        for outcome in _run_jobs(todo, runner, jobs, scheduler):
+        for outcome in _run_jobs(todo, runner, jobs, scheduler, running):
             outcomes[outcome.flight] = outcome
             bar.update(1)
+    except KeyboardInterrupt:
+        outcomes |= _stopped(todo, outcomes, running)
+        raise
     finally:
         bar.close()
         ordered = [outcomes[n] for n in names if n in outcomes]
         write_summary(out / SUMMARY_NAME, ordered)
         write_batch_index(out)
     return ordered
+
+
+def _flights_bar(total: int, done: int, progress: bool) -> tqdm:
+    return tqdm(total=total, initial=done, desc="flights", unit="flight", disable=not progress)
+
+
+def _stopped(
+    todo: list[FlightJob], outcomes: dict[str, FlightOutcome], running: set[str]
+) -> dict[str, FlightOutcome]:
+    """Outcomes for the flights an interrupt stopped: interrupted if started, else not started.
+
+    Neither has a done marker, so a rerun runs them.
+    """
+    stopped = {}
+    for job in todo:
+        if job.flight in outcomes:
+            continue
+        started = job.flight in running
+        stopped[job.flight] = FlightOutcome(
+            job.flight,
+            FlightStatus.INTERRUPTED if started else FlightStatus.NOT_STARTED,
+            message="stopped while running" if started else "stopped before it started",
+        )
+    return stopped
 
 
 def _outcome_of(fut: _Finished, job: FlightJob) -> FlightOutcome:
