@@ -15,17 +15,26 @@ listed in report.json.
 ``run`` = ``observe`` + ``estimator.estimate.estimate_trajectories`` + the
 estimator's files + plots + ``result.mcap`` (+ ``compare`` against a ground
 truth), with the time split by stage (the paper's Table 5) in ``report.json``.
+A run's folder is one unit through ``run.json``: over an earlier run it is
+``running`` from before the first output (a killed or failed run leaves it so:
+the folder then mixes two runs), and ``complete`` with the names of this run's
+files after the last one, once the files an earlier run wrote and this one did
+not are removed; its ``run_id`` is also report.json's ``pipeline.run_id``. A
+folder without a ``complete`` run.json holds no finished run.
 """
 
 from __future__ import annotations
 
 import contextlib
 import enum
+import json
 import logging
 import math
 import os
 import queue
+import shutil
 import time
+import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -948,6 +957,7 @@ def run(
     gt = read_ground_truth(gt_path, s.gt_offset_s) if gt_path is not None else None
     source = flight.open()
     cam = _camera_for(source, camera)
+    begun = begin_run(out)
     obs = observe(
         source, sign_map, cam, s.observe, progress, out / OBSERVATIONS_NAME, detector=detector
     )
@@ -984,10 +994,17 @@ def run(
         files=tuple(files),
         refused=refusal_counts(obs.refused),
     )
-    _add_to_report(out / REPORT_NAME, "pipeline", _pipeline_section(result, source, obs, s))
-    if out / REPORT_NAME not in files:
+    section = _pipeline_section(result, source, obs, s) | {"run_id": begun.run_id}
+    return _write_reports(out, result, section, begun)
+
+
+def _write_reports(out: Path, result: RunResult, section: dict, begun: BegunRun) -> RunResult:
+    """report.json's pipeline section, report.html (lists every file), run.json (last)."""
+    _add_to_report(out / REPORT_NAME, "pipeline", section)
+    if out / REPORT_NAME not in result.files:
         result = replace(result, files=(*result.files, out / REPORT_NAME))
-    return replace(result, files=(*result.files, write_run_report(out)))  # last: lists all
+    result = replace(result, files=(*result.files, write_run_report(out)))
+    return replace(result, files=(*result.files, finish_run(out, begun, result.files)))
 
 
 def _write_run_files(
@@ -1098,6 +1115,92 @@ def _add_to_report(path: Path, key: str, section: dict) -> None:
     report = read_report(path) if path.exists() else {}
     report[key] = section
     write_json(path, report)
+
+
+# --------------------------------------------------------------------------- run.json
+
+# run.json names the run a folder holds: written "running" (with what an earlier run left)
+# before the first output, "complete" (with this run's files) after the last one.
+RUN_MANIFEST_NAME = "run.json"
+
+
+class RunState(enum.StrEnum):
+    """run.json's ``state``: a folder still ``running`` (or killed) holds a mix of two runs."""
+
+    RUNNING = "running"
+    COMPLETE = "complete"
+
+
+@dataclass(frozen=True)
+class BegunRun:
+    """A run that has marked its folder.
+
+    Attributes:
+        run_id: this run's id (also in report.json's ``pipeline`` section).
+        earlier_files: names in the folder that earlier runs wrote and this one
+            has not replaced yet.
+    """
+
+    run_id: str
+    earlier_files: tuple[str, ...]
+
+
+def read_run_manifest(out_dir: str | os.PathLike) -> dict | None:
+    """run.json of ``out_dir`` (run_id, state, files, earlier_files); None: absent, unreadable."""
+    try:
+        manifest = json.loads((Path(out_dir) / RUN_MANIFEST_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return manifest if isinstance(manifest, dict) else None
+
+
+def _own_names(names) -> set[str]:
+    """The plain names in a manifest's list (nothing outside the folder, no hidden file)."""
+    if not isinstance(names, list):
+        return set()
+    return {n for n in names if isinstance(n, str) and n == Path(n).name and n[:1] not in ".~"}
+
+
+def _write_manifest(out: Path, run_id: str, state: RunState, files, earlier) -> None:
+    manifest = {
+        "run_id": run_id,
+        "state": state.value,
+        "files": sorted(files),
+        "earlier_files": sorted(earlier),
+    }
+    with atomic_write(out / RUN_MANIFEST_NAME, "w", encoding="utf-8") as f:
+        json.dump(manifest, f, indent=2)
+        f.write("\n")
+
+
+def begin_run(out: Path) -> BegunRun:
+    """Mark ``out`` as holding a run in progress, before its first output is written.
+
+    Only over an earlier run's files: without them a folder with no ``complete``
+    run.json already says it holds no finished run.
+    """
+    old = read_run_manifest(out) or {}
+    earlier = _own_names(old.get("files")) | _own_names(old.get("earlier_files"))
+    earlier.discard(RUN_MANIFEST_NAME)
+    begun = BegunRun(uuid.uuid4().hex, tuple(sorted(earlier)))
+    if earlier:  # else no earlier run to mix with: a refused first run leaves the folder empty
+        _write_manifest(out, begun.run_id, RunState.RUNNING, (), earlier)
+    return begun
+
+
+def finish_run(out: Path, begun: BegunRun, files: Iterable[Path]) -> Path:
+    """After the last output: remove what earlier runs left and this one did not rewrite,
+    then mark ``out`` complete with this run's files. Returns run.json's path."""
+    names = {Path(p).name for p in files if Path(p).parent == out} | {RUN_MANIFEST_NAME}
+    for stale in set(begun.earlier_files) - names:
+        path = out / stale
+        with contextlib.suppress(OSError):
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif path.exists() or path.is_symlink():
+                path.unlink()
+    _write_manifest(out, begun.run_id, RunState.COMPLETE, names, ())
+    return out / RUN_MANIFEST_NAME
 
 
 # --------------------------------------------------------------------------- demo
