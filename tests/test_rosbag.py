@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import shutil
 import sqlite3
+import subprocess
 from pathlib import Path
 
 import cv2
@@ -30,6 +32,7 @@ from signpose import pipeline
 from signpose.cli import main as cli_main
 from signpose.core.errors import InputError, OutputError
 from signpose.io import mcap as mcap_io
+from signpose.io import rosbag_write
 from signpose.io.camera_file import write_camera_info
 from signpose.io.frames_csv import FrameStamp, read_frames_csv, write_frames_csv
 from signpose.io.rosbag import read_bag_info
@@ -607,3 +610,27 @@ def test_result_bag_over_a_file_is_refused(tmp_path):
     with pytest.raises(OutputError, match="exists and is not a folder"):
         write_result_bag(target, bag)
     assert target.read_text() == "not a bag"
+
+
+def test_result_bag_staging_folder_carries_the_pid_and_a_killed_ones_is_removed(
+    tmp_path, monkeypatch
+):
+    bag, _, _ = _result_inputs(2)
+    target = tmp_path / "result_bag"
+    dead = subprocess.Popen(["true"])
+    dead.wait()  # its pid no longer runs: like a writer killed before its rename
+    killed = tmp_path / f".result_bag.{dead.pid}.abcd1234.tmp"
+    (killed / "result_bag").mkdir(parents=True)
+    live = tmp_path / f".result_bag.{os.getppid()}.abcd1234.tmp"  # a live writer's
+    live.mkdir()
+    staging = []
+    real_swap_in = rosbag_write._swap_in
+
+    def swap_in(staged, to):
+        staging.append(staged.parent.name)
+        real_swap_in(staged, to)
+
+    monkeypatch.setattr(rosbag_write, "_swap_in", swap_in)
+    write_result_bag(target, bag)
+    assert re.fullmatch(rf"\.result_bag\.{os.getpid()}\.[a-z0-9_]{{8}}\.tmp", staging[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == [live.name, "result_bag"]

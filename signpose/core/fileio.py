@@ -6,6 +6,7 @@ import contextlib
 import errno
 import os
 import re
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -61,8 +62,9 @@ def _pid_alive(pid: int) -> bool:
 def remove_stale_temporaries(folder: str | os.PathLike, base: str | None = None) -> list[Path]:
     """Remove the temporaries that writers killed before their rename left in ``folder``.
 
-    Only files named as ``atomic_write``/``atomic_path`` name them whose
-    process no longer runs (SIGKILL, a power cut); a live writer's file stays.
+    Only files (and ``temp_dir_beside``'s folders) named as ``atomic_write``/
+    ``atomic_path`` name them whose process no longer runs (SIGKILL, a power
+    cut); a live writer's file stays.
 
     Args:
         folder: the output folder.
@@ -78,12 +80,37 @@ def remove_stale_temporaries(folder: str | os.PathLike, base: str | None = None)
             m = _TEMP_NAME.match(entry.name)
             if m is None or (base is not None and m["base"] != base):
                 continue
-            if not entry.is_file(follow_symlinks=False) or _pid_alive(int(m["pid"])):
+            is_dir = entry.is_dir(follow_symlinks=False)
+            if not (is_dir or entry.is_file(follow_symlinks=False)):
+                continue
+            if _pid_alive(int(m["pid"])):
                 continue
             with contextlib.suppress(OSError):
-                os.unlink(entry.path)
+                if is_dir:
+                    shutil.rmtree(entry.path)
+                else:
+                    os.unlink(entry.path)
                 removed.append(Path(entry.path))
     return removed
+
+
+def temp_dir_beside(target: str | os.PathLike) -> Path:
+    """Create an empty temporary folder beside ``target`` for a writer of a whole folder.
+
+    Named like ``atomic_write``'s temporaries (with this process's id), so the
+    next write or ``ensure_dir`` removes it if this process is killed; a
+    killed writer's folder for the same ``target`` is removed first.
+
+    Raises:
+        OutputError: the folder cannot be created (named with ``target``).
+    """
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    remove_stale_temporaries(parent, target.name)
+    try:
+        return Path(tempfile.mkdtemp(prefix=_temp_prefix(target.name), suffix=".tmp", dir=parent))
+    except OSError as exc:
+        raise output_error(target, exc) from None
 
 
 def _refuse_folder(target: Path) -> None:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -32,6 +31,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from signpose.core.errors import OutputError
+from signpose.core.fileio import temp_dir_beside
 from signpose.estimator.camera import EQUIDISTANT, CameraModel
 from signpose.estimator.trajectory import Trajectory, quat_xyzw_from_rotation
 from signpose.frontend.observations import FrameObservations
@@ -257,11 +257,7 @@ def write_result_bag(path: str | os.PathLike, bag: ResultBag) -> Path:
     target = Path(path)
     if target.exists() and not target.is_dir():
         raise OutputError(f"{target}: exists and is not a folder; remove it or choose another")
-    parent = target.parent if str(target.parent) else Path(".")
-    try:
-        work = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
-    except OSError as exc:
-        raise OutputError(f"{target}: cannot write here ({exc.strerror})") from None
+    work = temp_dir_beside(target)  # with this process's id: a killed write's is removed later
     staged = work / target.name
     try:
         with Writer(staged, version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP) as writer:
