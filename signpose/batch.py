@@ -53,6 +53,8 @@ _METHOD_ORDER = ("baseline", "pnp", "smoothed", "causal")
 # FlightJob fields that change a flight's results (with its files: see _fingerprint).
 # plots and with_images only add files: changing them alone does not redo a flight (--force does).
 _RESULT_FIELDS = ("topic", "fps")
+# How long a stopped pool worker may take to flush its flight before it is killed [s].
+_WORKER_GRACE_S = 1.0
 
 
 class FlightStatus(enum.StrEnum):
@@ -488,10 +490,22 @@ def _run_in_pool(
             # Else leaving the pool would first run every running and queued flight to its end.
             processes = list((getattr(pool, "_processes", None) or {}).values())
             pool.shutdown(wait=False, cancel_futures=True)
-            for process in processes:  # SIGTERM: a worker cleans up as `signpose run` does
-                with contextlib.suppress(OSError, ValueError):
-                    process.terminate()
+            _stop_workers(processes)
             raise
+
+
+def _stop_workers(processes: list) -> None:
+    """SIGTERM (a worker flushes its flight as `signpose run` does), then SIGKILL after a grace:
+    a worker that caught the SIGTERM would go on with the calls already queued to it."""
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError):
+            process.terminate()
+    deadline = time.monotonic() + _WORKER_GRACE_S
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AssertionError):
+            process.join(max(deadline - time.monotonic(), 0.0))
+            if process.is_alive():
+                process.kill()
 
 
 def _run_on_dask(
