@@ -20,7 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "finished flight only when its input, map, camera, ground truth, --topic/--fps and the "
         "signpose version are unchanged (--force redoes all), and keeps the summary rows of "
         "flights not passed this time. The camera defaults to camera.yaml beside each input "
-        "(else the log's calibration) and groundtruth.tum beside an input is compared with.",
+        "(else the log's calibration) and groundtruth.tum beside an input is compared with. "
+        "Ctrl-C or SIGTERM stops the batch at once (exit 130 or 143): summary.csv lists the "
+        "running flights as interrupted and the queued ones as not_started, and a rerun runs them.",
     )
     p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT", help="flights")
     p.add_argument("--map", type=Path, required=True, help="sign map YAML")
