@@ -31,7 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Detect and decode the signs (tracking with the running estimate), "
         "estimate the trajectories (the paper's per-frame method and the smoother), and write "
         "observations.jsonl, the estimator's files, PNG plots, result.mcap and report.json "
-        "into DIR. With --gt also compare with the ground truth and print the table.",
+        "into DIR. With --gt also compare with the ground truth and print the table. "
+        "DIR/run.json names the run DIR holds: 'complete' with its files, written last; "
+        "'running' while (or after a stopped) rerun over an earlier run's files, which the "
+        "next complete run removes if it does not write them again.",
     )
     p.add_argument("input", type=Path, help="video file, image folder or .mcap log")
     p.add_argument("--map", type=Path, required=True, help="sign map YAML")
