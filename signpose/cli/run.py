@@ -33,8 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "observations.jsonl, the estimator's files, PNG plots, result.mcap and report.json "
         "into DIR. With --gt also compare with the ground truth and print the table. "
         "DIR/run.json names the run DIR holds: 'complete' with its files, written last; "
-        "'running' while (or after a stopped) rerun over an earlier run's files, which the "
-        "next complete run removes if it does not write them again.",
+        "'running' during a rerun over an earlier run's files and after one that was stopped "
+        "(DIR then mixes two runs); a complete run removes the earlier files it did not rewrite.",
     )
     p.add_argument("input", type=Path, help="video file, image folder or .mcap log")
     p.add_argument("--map", type=Path, required=True, help="sign map YAML")
