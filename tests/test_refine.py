@@ -74,9 +74,7 @@ def test_refine_map_cli_writes_a_map_and_refuses_other_sites(tmp_path, capsys):
 
 def test_estimate_writes_a_refined_map_that_moves_a_shifted_sign_back(tmp_path):
     """One flight, one sign 10 cm off in the map: map_refined.yaml puts it back."""
-    sign_map, camera, frames, _, _ = estimator_scene(
-        n_frames=40, sigma_px=0.3, seed=0, flat=False
-    )
+    sign_map, camera, frames, _, _ = estimator_scene(n_frames=40, sigma_px=0.3, seed=0, flat=False)
     obs, cam, survey = tmp_path / "obs.jsonl", tmp_path / "cam.yaml", tmp_path / "survey.yaml"
     write_observations(obs, frames)
     write_camera_info(cam, camera)
