@@ -29,7 +29,8 @@ from signpose.frontend.detector import SignDetector
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose.core.fileio import atomic_write
-from signpose.sim.flight import SimSettings, read_boxes, simulate
+from signpose.io.boxes import read_boxes
+from signpose.sim.flight import SimSettings, simulate
 
 BENCH_SEED = 5151
 

@@ -41,7 +41,8 @@ from signpose.frontend.detector import DetectorSettings, SignDetector
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose.core.fileio import atomic_write
-from signpose.sim.flight import SimSettings, read_boxes, simulate
+from signpose.io.boxes import read_boxes
+from signpose.sim.flight import SimSettings, simulate
 
 BINS = ((18, 30), (30, 60), (60, 200))
 # Held-out flights: (trajectory, distance [m], share of the frames). Far, middle

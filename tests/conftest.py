@@ -175,6 +175,6 @@ def simulate_tiny(out: Path, frames: int = 16, fmt: str = "mp4", **kw):
 
 def truth_detector(sim, **kw) -> TruthDetector:
     """A TruthDetector replaying the simulated flight ``sim``."""
-    from signpose.sim.flight import read_boxes
+    from signpose.io.boxes import read_boxes
 
     return TruthDetector(read_boxes(sim.boxes_path), **kw)

@@ -133,7 +133,7 @@ def test_scheduler_without_dask_says_how_to_install(monkeypatch, tmp_path):
 
 
 def test_demo_end_to_end(monkeypatch, tmp_path, capsys):
-    from signpose.sim.flight import read_boxes
+    from signpose.io.boxes import read_boxes
 
     real_observe = pipeline.observe
 

@@ -16,8 +16,8 @@ from signpose.maps.loader import bundled_map_path
 
 from signpose import batch, pipeline
 from signpose.cli import EXIT_INPUT, main
+from signpose.io.boxes import read_boxes
 from signpose.report_html import INDEX_NAME
-from signpose.sim.flight import read_boxes
 
 
 def test_missing_truncated_and_wrong_camera(tmp_path, monkeypatch, capsys):

@@ -18,7 +18,7 @@ from signpose.maps.loader import bundled_map_path
 from signpose import batch, pipeline
 from signpose.cli import main
 from signpose.fingerprint import FINGERPRINT_KEY
-from signpose.sim.flight import read_boxes
+from signpose.io.boxes import read_boxes
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from signpose.maps.loader import bundled_map_path
 from signpose import batch, pipeline
 from signpose.cli import main
 from signpose.core.errors import InputError
-from signpose.sim.flight import read_boxes
+from signpose.io.boxes import read_boxes
 
 MAP = str(bundled_map_path())
 MALFORMED = '<?xml version="1.0"?>\n<opencv_storage><cascade><stageType>BOOST</stageType'

@@ -269,7 +269,8 @@ def test_pnp_warm_start_from_a_distant_prior_does_not_stick_in_a_wrong_minimum(t
     # that prior settled 3 m off while fitting within 0.8 px (seen in a batch run).
     from signpose.frontend.observations import SignObservation
 
-    from signpose.sim.flight import SimSettings, read_boxes, simulate
+    from signpose.io.boxes import read_boxes
+    from signpose.sim.flight import SimSettings, simulate
 
     sign_map = load_map(bundled_map_path())
     sim = simulate(sign_map, tmp_path, SimSettings(frames=8, width=320, height=240), progress=False)

@@ -54,7 +54,7 @@ def test_observe_streams_and_tracks(tiny_flight, tmp_path):
 
 def test_predictions_match_the_truth(tiny_flight):
     """predict_signs from the true pose lands on the true centres."""
-    from signpose.sim.flight import read_boxes
+    from signpose.io.boxes import read_boxes
 
     sign_map = load_map(bundled_map_path())
     boxes = read_boxes(tiny_flight.boxes_path)

@@ -35,8 +35,8 @@ import yaml
 
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_path, atomic_write
+from signpose.core.nesting import check_nesting
 from signpose.estimator.camera import EQUIDISTANT, PLUMB_BOB, CameraModel
-from signpose.io.guards import check_nesting
 
 ROS_CAMERA_INFO = "camera_info"
 OPENCV = "opencv"

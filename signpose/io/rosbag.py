@@ -30,7 +30,7 @@ import yaml
 import zstandard
 
 from signpose.core.errors import InputError
-from signpose.io.guards import check_nesting
+from signpose.core.nesting import check_nesting
 from signpose.io.mcap_read import McapLog
 from signpose.io.messages import LogChannel, LogMessage, MessageLog
 from signpose.io.rosbag_db3 import Db3Log

@@ -41,7 +41,7 @@ from signpose.core.errors import InputError
 from signpose.core.fileio import ensure_dir
 from signpose.estimator.camera import CameraModel, pinhole_camera
 from signpose.estimator.trajectory import Trajectory
-from signpose.io.boxes import FrameConditions, FrameTruth, read_boxes, write_boxes
+from signpose.io.boxes import FrameConditions, FrameTruth, write_boxes
 from signpose.io.camera_file import write_camera_info
 from signpose.io.tum import write_tum
 from signpose.maps.loader import SignMap, write_map
@@ -52,14 +52,12 @@ from signpose.sim.scene import Scene, SceneOptions, build_scene
 from signpose.sim.trajectories import TRAJECTORIES, make_trajectory
 from signpose.sim.writers import FORMATS, FrameWriter, make_frame_writer
 
-# ``read_boxes`` moved to signpose.io.boxes; callers that import it from here keep working.
 __all__ = [
     "FORMATS",
     "SimResult",
     "SimSettings",
     "lighting_at",
     "pose_at",
-    "read_boxes",
     "simulate",
     "simulated_camera",
     "stamp_ns_of",
