@@ -1,6 +1,7 @@
 """Load, validate and write sign maps (schema in ``maps/SCHEMA.md``).
 
-World frame: the map's ``frame``, z up, metres.
+World frame: the map's ``frame``, z up, metres. With an ``origin`` (WGS84) the
+world frame is ENU at that origin (x east, y north, z up; ``maps.geodesy``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 from signpose.frontend.sign import ALL_CODES, sign_keypoints
+from signpose.maps.geodesy import GeoOrigin, enu_from_geodetic
 
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write
@@ -27,7 +29,11 @@ MAX_MAP_BYTES = 1_000_000
 MAX_COORDINATE_M = 1e7
 # Sign diameter and survey sigma [m]: above this the number is a unit mistake.
 MAX_LENGTH_M = 100.0
-TOP_LEVEL_KEYS = ("frame", "signs")
+TOP_LEVEL_KEYS = ("frame", "signs", "origin")
+ORIGIN_KEYS = ("lat_deg", "lon_deg", "height_m")
+# Ellipsoidal heights of the origin [m]: below the Dead Sea's geoid, above Everest.
+MAX_ORIGIN_HEIGHT_M = 10_000.0
+SIGN_KEYS = {"code", "center_m", "center_wgs84", "normal", "up", "diameter_m", "sigma_m"}
 
 
 @dataclass(frozen=True)
@@ -102,11 +108,14 @@ class SignMap:
         frame: name of the world frame (z up).
         signs: the signs, in file order, codes unique.
         source: the file it was read from ("" when built in code).
+        origin: the WGS84 anchor of the world frame (then ENU at it), or None
+            when the map is in a site frame only.
     """
 
     frame: str
     signs: tuple[MapSign, ...]
     source: str = ""
+    origin: GeoOrigin | None = None
 
     @property
     def codes(self) -> tuple[str, ...]:
@@ -167,6 +176,64 @@ def _positive(path: str, where: str, field: str, value) -> float:
     return x
 
 
+def _origin(source: str, raw) -> GeoOrigin:
+    """The map's optional ``origin: {lat_deg, lon_deg, height_m}``, validated."""
+    if not isinstance(raw, dict):
+        raise InputError(
+            f"{source}: field 'origin' must be a mapping {{lat_deg: .., lon_deg: .., height_m: ..}}"
+        )
+    unknown = sorted(str(k) for k in raw if k not in ORIGIN_KEYS)
+    if unknown:
+        raise InputError(
+            f"{source}: origin: unknown field '{unknown[0]}' (use lat_deg, lon_deg, height_m)"
+        )
+    values = {}
+    limits = {"lat_deg": 90.0, "lon_deg": 180.0, "height_m": MAX_ORIGIN_HEIGHT_M}
+    for key in ORIGIN_KEYS:
+        if key not in raw:
+            raise InputError(f"{source}: origin: missing field '{key}'")
+        value = raw[key]
+        if isinstance(value, bool):
+            value = None
+        try:
+            x = float(value)
+        except (TypeError, ValueError, OverflowError):
+            raise InputError(f"{source}: origin: field '{key}' must be a number") from None
+        if not math.isfinite(x) or abs(x) > limits[key]:
+            raise InputError(
+                f"{source}: origin: field '{key}' must be a finite number within "
+                f"+-{limits[key]:g} (WGS84 degrees; ellipsoidal height in metres)"
+            )
+        values[key] = x
+    return GeoOrigin(**values)
+
+
+def _center(source: str, where: str, raw: dict, origin: GeoOrigin | None) -> np.ndarray:
+    """A sign's centre in the world frame: ``center_m``, or ``center_wgs84`` converted."""
+    has_m, has_geo = "center_m" in raw, "center_wgs84" in raw
+    if has_m and has_geo:
+        raise InputError(f"{source}: {where}: give 'center_m' or 'center_wgs84', not both")
+    if not has_geo:
+        if not has_m:
+            raise InputError(f"{source}: {where}: missing field 'center_m'")
+        return _vector(source, where, "center_m", raw["center_m"], nonzero=False)
+    if origin is None:
+        raise InputError(
+            f"{source}: {where}: field 'center_wgs84' needs the map's 'origin' "
+            "(add origin: {lat_deg: .., lon_deg: .., height_m: ..})"
+        )
+    geo = _vector(source, where, "center_wgs84", raw["center_wgs84"], nonzero=False)
+    if abs(geo[0]) > 90.0 or abs(geo[1]) > 180.0:
+        raise InputError(
+            f"{source}: {where}: field 'center_wgs84' must be [lat_deg, lon_deg, height_m] "
+            "with latitude within +-90 and longitude within +-180"
+        )
+    center = enu_from_geodetic(origin, geo[0], geo[1], geo[2])[0]
+    if np.max(np.abs(center)) > MAX_COORDINATE_M:
+        raise InputError(f"{source}: {where}: field 'center_wgs84' is too far from the origin")
+    return center
+
+
 def parse_map(data, source: str = "<map>") -> SignMap:
     """Validate a map already parsed from YAML; raise InputError on any problem."""
     if not isinstance(data, dict):
@@ -175,7 +242,7 @@ def parse_map(data, source: str = "<map>") -> SignMap:
     if unknown_top:
         raise InputError(
             f"{source}: unknown top-level key '{unknown_top[0]}' (a map has only "
-            f"{' and '.join(TOP_LEVEL_KEYS)})"
+            "'frame', 'signs' and the optional 'origin')"
         )
     frame = data.get("frame")
     if not isinstance(frame, str) or not frame:
@@ -183,6 +250,7 @@ def parse_map(data, source: str = "<map>") -> SignMap:
     raw_signs = data.get("signs")
     if not isinstance(raw_signs, list) or not raw_signs:
         raise InputError(f"{source}: field 'signs' must be a non-empty list")
+    origin = _origin(source, data["origin"]) if "origin" in data else None
     signs: list[MapSign] = []
     seen: set[str] = set()
     for i, raw in enumerate(raw_signs):
@@ -202,13 +270,13 @@ def parse_map(data, source: str = "<map>") -> SignMap:
         if code in seen:
             raise InputError(f"{source}: {where}: duplicate code")
         seen.add(code)
-        unknown = set(raw) - {"code", "center_m", "normal", "up", "diameter_m", "sigma_m"}
+        unknown = set(raw) - SIGN_KEYS
         if unknown:
             raise InputError(f"{source}: {where}: unknown field '{sorted(unknown)[0]}'")
-        for field in ("center_m", "diameter_m", "sigma_m"):
+        center = _center(source, where, raw, origin)
+        for field in ("diameter_m", "sigma_m"):
             if field not in raw:
                 raise InputError(f"{source}: {where}: missing field '{field}'")
-        center = _vector(source, where, "center_m", raw["center_m"], nonzero=False)
         has_n, has_u = "normal" in raw, "up" in raw
         if has_n != has_u:
             missing = "up" if has_n else "normal"
@@ -231,7 +299,7 @@ def parse_map(data, source: str = "<map>") -> SignMap:
         diameter = _positive(source, where, "diameter_m", raw["diameter_m"])
         sigma = _positive(source, where, "sigma_m", raw["sigma_m"])
         signs.append(MapSign(code, center, normal, up, diameter, sigma))
-    return SignMap(frame=frame, signs=tuple(signs), source=source)
+    return SignMap(frame=frame, signs=tuple(signs), source=source, origin=origin)
 
 
 def load_map(path: str | Path) -> SignMap:
@@ -281,7 +349,12 @@ def map_to_dict(sign_map: SignMap) -> dict:
         d["diameter_m"] = s.diameter_m
         d["sigma_m"] = s.sigma_m
         out.append(d)
-    return {"frame": sign_map.frame, "signs": out}
+    d = {"frame": sign_map.frame}
+    if sign_map.origin is not None:
+        o = sign_map.origin
+        d["origin"] = {"lat_deg": o.lat_deg, "lon_deg": o.lon_deg, "height_m": o.height_m}
+    d["signs"] = out
+    return d
 
 
 def write_map(path: str | Path, sign_map: SignMap) -> None:
