@@ -8,8 +8,8 @@ from pathlib import Path
 
 from signpose.cli import add_quiet
 from signpose.maps.loader import bundled_map_path, load_map
-from signpose.sim.flight import FORMATS, SimSettings, simulate
-from signpose.sim.trajectories import TRAJECTORIES
+from signpose.sim.flight import FORMATS, SimSettings, frames_for_duration, simulate
+from signpose.sim.trajectories import DEFAULT_SPEED_MPS, TRAJECTORIES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,14 +19,41 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render a simulated flight (frames + ground truth)",
         description="Render a UAV flight in front of the signs of MAP: frames (video.mp4 or "
         "frames/NNNNNN.png), camera.yaml, groundtruth.tum, boxes.jsonl and map.yaml in DIR. "
-        "Same seed, same outputs.",
+        "Same seed, same outputs. The flight lasts --frames / --fps seconds (or --duration) "
+        "at the trajectory's cruise speed (--speed): a shorter flight is the start of a longer "
+        "one. Past one pass of its path the orbit goes round again; climb-hover-depart and "
+        "lawnmower fly their path back and forth (depart, return, descend; sweep up the "
+        "pylon, then down), turning where they stop.",
     )
     p.add_argument(
         "--map", type=Path, default=None, help="sign map YAML (default: the bundled demo pylon)"
     )
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--frames", type=int, default=d.frames, help=f"frames (default {d.frames})")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument(
+        "--frames",
+        type=int,
+        default=None,
+        help=f"frames; the flight lasts FRAMES / fps seconds (default {d.frames})",
+    )
+    length.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="the flight's length instead of --frames: round(SECONDS * fps) frames",
+    )
     p.add_argument("--fps", type=float, default=d.fps, help=f"frame rate (default {d.fps:g})")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=None,
+        metavar="M/S",
+        help="cruise speed, the mean speed over one pass of the path (path length / pass "
+        "time), in (0, 30] m/s; the summary line prints the flight's mean and peak (default: "
+        + ", ".join(f"{name} {v:g}" for name, v in DEFAULT_SPEED_MPS.items())
+        + ")",
+    )
     p.add_argument(
         "--trajectory",
         choices=TRAJECTORIES,
@@ -92,9 +119,14 @@ def _quality_range(text: str) -> tuple[int, int]:
 def run(args: argparse.Namespace) -> int:
     map_path = args.map if args.map is not None else bundled_map_path()
     sign_map = load_map(map_path)
+    if args.duration is not None:
+        frames = frames_for_duration(args.duration, args.fps)
+    else:
+        frames = SimSettings.frames if args.frames is None else args.frames
     settings = SimSettings(
-        frames=args.frames,
+        frames=frames,
         fps=args.fps,
+        speed_mps=DEFAULT_SPEED_MPS[args.trajectory] if args.speed is None else args.speed,
         trajectory=args.trajectory,
         seed=args.seed,
         distance_m=args.distance,
@@ -113,8 +145,9 @@ def run(args: argparse.Namespace) -> int:
     settings = replace(settings, **given).validate()
     result = simulate(sign_map, args.out, settings, progress=args.progress)
     print(
-        f"simulated {result.n_frames} frames ({settings.trajectory}, seed {settings.seed}) "
-        f"of {map_path} into {result.out_dir}" + ("" if args.quiet else ":")
+        f"simulated {result.n_frames} frames ({result.duration_s:.2f} s, {settings.trajectory}, "
+        f"mean {result.mean_speed_mps:.2f} m/s, peak {result.peak_speed_mps:.2f} m/s, "
+        f"seed {settings.seed}) of {map_path} into {result.out_dir}" + ("" if args.quiet else ":")
     )
     if not args.quiet:  # --quiet: the result line only
         for path in result.paths():

@@ -62,8 +62,10 @@ def tum_lines(traj: Trajectory) -> list[str]:
     return out
 
 
-def write_tum(path: str | Path, traj: Trajectory) -> None:
-    """Write ``traj`` as TUM (atomically)."""
+def write_tum(path: str | Path, traj: Trajectory, comments: tuple[str, ...] = ()) -> None:
+    """Write ``traj`` as TUM (atomically), after ``comments`` as ``#`` lines (one line each)."""
     with atomic_write(path) as f:
+        for comment in comments:
+            f.write("# " + " ".join(comment.split()) + "\n")
         for line in tum_lines(traj):
             f.write(line + "\n")

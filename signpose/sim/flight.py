@@ -9,6 +9,15 @@ OpenCV axes (x right, y down, z forward). Time: frame ``i`` is at
 ``i / fps`` seconds, ``stamp_ns = round(i * 1e9 / fps)``; the exposure is
 centred on the stamp.
 
+Speed: ``SimSettings.speed_mps`` is the cruise speed (the mean path speed,
+``signpose.sim.trajectories``): the frames cover the first frames / fps
+seconds of the flight at that speed, repeating the orbit and flying the other
+paths back and forth when they last longer than one pass. None (the
+library's default, kept by the evaluations) squeezes the whole path into the
+frames once; ``signpose simulate`` always passes a speed
+(``DEFAULT_SPEED_MPS`` unless ``--speed``). The flight's mean and peak speed
+are in ``SimResult`` and in ``groundtruth.tum``'s ``#`` header line.
+
 Conditions: every real-pylon condition is off by default (a default flight
 renders as it always did) and switchable in ``SimSettings``; ``hard()`` turns
 them all on at the ``HARD`` rates. Scene conditions (members and conductors in
@@ -20,7 +29,9 @@ frame and sign got is in ``boxes.jsonl``.
 Output folder (``simulate``):
     video.mp4, frames/ or flight.mcap the frames (``signpose.sim.writers``)
     camera.yaml                      ROS camera_info (``signpose.io.camera_file``)
-    groundtruth.tum                  world_T_cam per frame (``signpose.io.tum``)
+    groundtruth.tum                  world_T_cam per frame (``signpose.io.tum``),
+                                     after one ``#`` line: trajectory, frames, fps,
+                                     duration_s, speed_mps, mean/peak_speed_mps
     boxes.jsonl                      per-frame truth of every visible sign
                                      (``signpose.io.boxes``, which documents it)
     map.yaml                         copy of the map (``signpose.maps.loader``)
@@ -49,13 +60,20 @@ from signpose.sim.conditions import ConditionSettings, frame_draws
 from signpose.sim.frame import render_frame
 from signpose.sim.render import RenderOptions
 from signpose.sim.scene import Scene, SceneOptions, build_scene
-from signpose.sim.trajectories import TRAJECTORIES, make_trajectory
+from signpose.sim.trajectories import (
+    CONTINUATION,
+    MAX_SPEED_MPS,
+    TRAJECTORIES,
+    make_trajectory,
+    speed_stats,
+)
 from signpose.sim.writers import FORMATS, FrameWriter, make_frame_writer
 
 __all__ = [
     "FORMATS",
     "SimResult",
     "SimSettings",
+    "frames_for_duration",
     "lighting_at",
     "pose_at",
     "simulate",
@@ -91,8 +109,11 @@ class SimSettings:
     """What to simulate (defaults: the paper's simulated set, 1080p at 25-30 m).
 
     Attributes:
-        frames: number of frames.
+        frames: number of frames (the flight lasts frames / fps seconds).
         fps: frame rate [Hz].
+        speed_mps: cruise speed, the mean path speed [m/s], in (0, 30]; None:
+            the whole path once over the frames (the library's old behaviour,
+            whatever speed that takes).
         trajectory: one of ``signpose.sim.trajectories.TRAJECTORIES``.
         seed: seeds the trajectory wobble, the scene textures, dirt, occluders,
             lighting and noise. Same seed, same outputs.
@@ -124,6 +145,7 @@ class SimSettings:
 
     frames: int = 210
     fps: float = 30.0
+    speed_mps: float | None = None
     trajectory: str = "climb-hover-depart"
     seed: int = 0
     width: int = 1920
@@ -187,6 +209,8 @@ class SimSettings:
             raise InputError(f"--frames must be >= 1, got {self.frames}")
         if not (self.fps > 0 and math.isfinite(self.fps)):
             raise InputError(f"--fps must be > 0, got {self.fps}")
+        if self.speed_mps is not None and not 0.0 < self.speed_mps <= MAX_SPEED_MPS:
+            raise InputError(f"--speed must be in (0, {MAX_SPEED_MPS:g}] m/s, got {self.speed_mps}")
         if self.trajectory not in TRAJECTORIES:
             raise InputError(
                 f"unknown trajectory {self.trajectory!r}; choose from {', '.join(TRAJECTORIES)}"
@@ -220,6 +244,15 @@ class SimSettings:
         return self
 
 
+def frames_for_duration(duration_s: float, fps: float) -> int:
+    """Frames of a flight of ``duration_s`` seconds at ``fps`` (at least one); InputError if bad."""
+    if not (duration_s > 0 and math.isfinite(duration_s)):
+        raise InputError(f"--duration must be a number of seconds > 0, got {duration_s}")
+    if not (fps > 0 and math.isfinite(fps)):
+        raise InputError(f"--fps must be > 0, got {fps}")
+    return max(1, round(duration_s * fps))
+
+
 @dataclass(frozen=True)
 class SimResult:
     """What ``simulate`` wrote.
@@ -234,6 +267,9 @@ class SimResult:
         n_frames: number of frames written.
         camera: the simulated camera.
         trajectory: the ground truth trajectory.
+        duration_s: the flight's length, frames / fps [s].
+        mean_speed_mps: distance flown / time flown [m/s] (0 for one frame).
+        peak_speed_mps: fastest frame-to-frame speed [m/s].
     """
 
     out_dir: Path
@@ -245,6 +281,9 @@ class SimResult:
     n_frames: int
     camera: CameraModel
     trajectory: Trajectory
+    duration_s: float = 0.0
+    mean_speed_mps: float = 0.0
+    peak_speed_mps: float = 0.0
 
     def paths(self) -> tuple[Path, ...]:
         return (
@@ -363,6 +402,17 @@ def _render_flight(
     return truths
 
 
+def _flight_comment(settings: SimSettings, result: SimResult) -> str:
+    """groundtruth.tum's header: what was flown, ``key=value`` separated by spaces."""
+    speed = "fit" if settings.speed_mps is None else f"{settings.speed_mps:g}"
+    return (
+        f"signpose simulate trajectory={settings.trajectory} frames={result.n_frames} "
+        f"fps={settings.fps:g} duration_s={result.duration_s:.3f} speed_mps={speed} "
+        f"mean_speed_mps={result.mean_speed_mps:.3f} peak_speed_mps={result.peak_speed_mps:.3f} "
+        f"continuation={CONTINUATION[settings.trajectory].replace(' ', '-')} seed={settings.seed}"
+    )
+
+
 def simulate(
     sign_map: SignMap,
     out_dir: str | Path,
@@ -390,7 +440,9 @@ def simulate(
         fps=settings.fps,
         distance_m=settings.distance_m,
         seed=settings.seed,
+        speed_mps=settings.speed_mps,
     )
+    mean_speed, peak_speed = speed_stats(traj)
     scene = build_scene(sign_map, camera, settings.seed, settings.scene_options())
     log.info(
         "simulating %d frames %dx%d (%s, seed %d) of %d signs into %s",
@@ -417,9 +469,12 @@ def simulate(
         n_frames=len(traj),
         camera=camera,
         trajectory=traj,
+        duration_s=settings.frames / settings.fps,
+        mean_speed_mps=mean_speed,
+        peak_speed_mps=peak_speed,
     )
     write_boxes(result.boxes_path, truths)
     write_camera_info(result.camera_path, camera)
-    write_tum(result.groundtruth_path, traj)
+    write_tum(result.groundtruth_path, traj, (_flight_comment(settings, result),))
     write_map(result.map_path, sign_map)
     return result
