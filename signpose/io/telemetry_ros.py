@@ -63,7 +63,8 @@ def _fix_row(msg: LogMessage, skipped: dict[str, int]) -> list[float] | None:
     if status is not None and int(_get(status, "status", 0)) <= STATUS_NO_FIX:
         count(skipped, "no_fix")
         return None
-    cov = np.asarray(_get(m, "position_covariance", []) or [], dtype=float).reshape(-1)
+    cov = _get(m, "position_covariance")
+    cov = np.asarray([] if cov is None else cov, dtype=float).reshape(-1)
     kind = int(_get(m, "position_covariance_type", COVARIANCE_UNKNOWN) or 0)
     sh = sv = math.nan  # the reader's default
     if kind != COVARIANCE_UNKNOWN and cov.size == 9 and cov[0] > 0 and cov[4] > 0 and cov[8] > 0:
@@ -144,7 +145,11 @@ def read_log_telemetry(log: MessageLog, topics: Iterable[str] | None = None) -> 
             count(skipped, "garbled")
             continue
         is_gnss = gnss_ch is not None and msg.topic == gnss_ch.topic
-        row = _fix_row(msg, skipped) if is_gnss else _imu_row(msg, skipped)
+        try:
+            row = _fix_row(msg, skipped) if is_gnss else _imu_row(msg, skipped)
+        except (TypeError, ValueError, OverflowError):  # a field that is not a number
+            count(skipped, "garbled")
+            continue
         if row is not None:
             (fixes if is_gnss else samples).append(row)
     if log.problem:
