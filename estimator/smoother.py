@@ -40,6 +40,7 @@ from dataclasses import dataclass, replace
 import gtsam
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.estimator.marginals import Conditional, selected_covariances
 from signpose.estimator.projection import pixel_from_normalised
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
@@ -776,15 +777,23 @@ def batch_covariances(
 ) -> np.ndarray:
     """(N, 6, 6) marginal covariance of every pose ([rotation, translation], camera frame).
 
-    Eliminates the graph linearised at the solution once, in ``ordering``
-    (the chain ordering: 11x faster than gtsam.Marginals' own COLAMD ordering
-    with constant velocity, identical to 1e-12), and asks the Bayes tree for
-    each pose's marginal, newest first so that shortcuts are reused. NaN when
-    the elimination fails (a warning is logged).
+    Eliminates the graph linearised at the solution once, sequentially in
+    ``ordering`` (the chain ordering: frames in time order, then the
+    landmarks), and gets every pose's marginal in one backward pass over
+    that Bayes net (``estimator.marginals``: the variables after the last
+    frame are inverted as one dense block). Identical to gtsam.Marginals to
+    1e-9 (tests/test_marginals_fast.py); one Bayes-tree ``marginalCovariance``
+    per pose cost 3.2 ms per pose at 1,000 frames. Without an ordering, or
+    when the tail is not small, the Bayes tree is asked pose by pose. NaN
+    when the elimination fails (a warning is logged).
     """
     cov = np.full((n_frames, 6, 6), np.nan)
     try:
         linear = graph.linearize(values)
+        if ordering is not None:
+            fast = _chain_covariances(linear, ordering, n_frames)
+            if fast is not None:
+                return fast
         tree = (
             linear.eliminateMultifrontal(ordering) if ordering else linear.eliminateMultifrontal()
         )
@@ -793,6 +802,31 @@ def batch_covariances(
     except RuntimeError as exc:
         log.warning("marginals failed: %s", exc)
     return cov
+
+
+# Above this many dimensions after the last frame the dense tail of the
+# one-pass marginals would cost more than the Bayes tree's per-pose marginals.
+MAX_TAIL_DIM = 1500
+
+
+def _chain_covariances(
+    linear: gtsam.GaussianFactorGraph, ordering: gtsam.Ordering, n_frames: int
+) -> np.ndarray | None:
+    """(N, 6, 6) pose covariances by one backward pass, or None when the net does not suit it."""
+    net = linear.eliminateSequential(ordering)
+    conds = []
+    for k in range(net.size()):
+        c = net.at(k)
+        if c.get_model() is not None:  # a constrained or weighted conditional: not unit noise
+            return None
+        keys = c.keys()
+        conds.append(Conditional(keys[0], np.asarray(c.R()), tuple(keys[1:]), np.asarray(c.S())))
+    frame_keys = {X(i) for i in range(n_frames)} | {V(i) for i in range(n_frames)}
+    last = max((k for k, c in enumerate(conds) if c.key in frame_keys), default=-1)
+    if sum(c.R.shape[0] for c in conds[last + 1 :]) > MAX_TAIL_DIM:
+        return None
+    got = selected_covariances(conds, last + 1, [X(i) for i in range(n_frames)])
+    return np.array([got[X(i)] for i in range(n_frames)]).reshape(n_frames, 6, 6)
 
 
 def batch_sigmas(
