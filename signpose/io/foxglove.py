@@ -29,6 +29,7 @@ SCHEMA_NAMES = (
     "CompressedImage",
     "FrameTransforms",
     "ImageAnnotations",
+    "LocationFix",
     "PoseInFrame",
     "RawImage",
     "SceneUpdate",
@@ -244,3 +245,49 @@ def image_annotations(frame_obs: FrameObservations, default_diameter_px: float =
             }
         )
     return {"circles": circles, "points": [], "texts": texts}
+
+
+def location_fix(
+    stamp_ns: int,
+    frame_id: str,
+    lat_deg: float,
+    lon_deg: float,
+    height_m: float,
+    sigma_enu_m=None,
+    rgba: Iterable[float] | None = None,
+) -> dict:
+    """foxglove.LocationFix of a WGS84 position (ellipsoidal height [m]).
+
+    Args:
+        sigma_enu_m: (3,) standard deviation along east, north, up [m], or
+            None / non-finite: covariance unknown (type 0).
+        rgba: the fix's colour in Foxglove's map panel, or None.
+    """
+    cov, kind = [0.0] * 9, 0
+    if sigma_enu_m is not None:
+        s = np.asarray(sigma_enu_m, dtype=float).reshape(3)
+        if np.all(np.isfinite(s)):
+            cov = [
+                float(s[0] ** 2),
+                0.0,
+                0.0,
+                0.0,
+                float(s[1] ** 2),
+                0.0,
+                0.0,
+                0.0,
+                float(s[2] ** 2),
+            ]
+            kind = 2  # DIAGONAL_KNOWN
+    msg = {
+        "timestamp": stamp_dict(stamp_ns),
+        "frame_id": frame_id,
+        "latitude": float(lat_deg),
+        "longitude": float(lon_deg),
+        "altitude": float(height_m),
+        "position_covariance": cov,
+        "position_covariance_type": kind,
+    }
+    if rgba is not None:
+        msg["color"] = _color(rgba)
+    return msg

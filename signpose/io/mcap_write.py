@@ -28,10 +28,13 @@ from signpose.io.foxglove import (
     compressed_image,
     frame_transforms,
     image_annotations,
+    location_fix,
+    method_color,
     pose_in_frame,
     scene_update,
     schema_text,
 )
+from signpose.io.geo_out import GNSS_NAME, GeoTrack
 from signpose.io.tracks import pose_tracks
 from signpose.maps.loader import SignMap
 
@@ -44,6 +47,11 @@ GROUNDTRUTH_TOPIC = "/groundtruth/pose"
 ANNOTATIONS_TOPIC = "/signpose/detections"
 SCENE_TOPIC = "/signpose/scene"
 TF_TOPIC = "/tf"
+GNSS_FIX_TOPIC = "/gnss/fix"
+GNSS_FRAME = "gnss"
+# foxglove.LocationFix of a georeferenced track (the GNSS fixes: GNSS_FIX_TOPIC).
+LOCATION_TOPIC = "/signpose/{name}/fix"
+_GNSS_RGBA = (0.94, 0.61, 0.24, 1.0)
 
 
 class McapJsonWriter(PublishOnExit):
@@ -202,6 +210,7 @@ def write_result_mcap(
     jpeg_quality: int = 85,
     progress: bool = False,
     camera_frame: str = CAMERA_FRAME,
+    geo_tracks: tuple[GeoTrack, ...] = (),
 ) -> None:
     """The result log for Foxglove, written atomically.
 
@@ -217,6 +226,9 @@ def write_result_mcap(
         jpeg_quality: JPEG quality of the images.
         progress: show a tqdm bar over frames.
         camera_frame: the input's camera frame id (the /tf child and the images' frame).
+        geo_tracks: WGS84 tracks written as foxglove.LocationFix (Foxglove's map
+            panel): an estimated one on ``/signpose/<name>/fix`` at its frames,
+            the GNSS fixes (name ``gnss``) on ``/gnss/fix`` at their own times.
     """
 
     world = sign_map.frame
@@ -224,6 +236,7 @@ def write_result_mcap(
     tf_name = "smoothed" if "smoothed" in trajectories else next(iter(trajectories), None)
     tracks = pose_tracks(trajectories)
     image_iter = iter(images) if images is not None else None
+    fixes = _LocationFixes(geo_tracks, camera_frame)
     with McapJsonWriter(path) as writer:
         writer.write(SCENE_TOPIC, "SceneUpdate", scene_update(t0, sign_map, trajectories), t0)
         if camera is not None:
@@ -237,6 +250,7 @@ def write_result_mcap(
                     msg = compressed_image(item[0], item[1], camera_frame, jpeg_quality)
                     writer.write(IMAGE_TOPIC, "CompressedImage", msg, item[0])
             writer.write(ANNOTATIONS_TOPIC, "ImageAnnotations", image_annotations(obs), t)
+            fixes.write_until(writer, t)
             for name, track in tracks.items():
                 T = track.at(t)
                 if T is None:
@@ -246,3 +260,39 @@ def write_result_mcap(
                     writer.write(
                         TF_TOPIC, "FrameTransforms", frame_transforms(t, world, camera_frame, T), t
                     )
+        fixes.write_until(writer, None)
+
+
+class _LocationFixes:
+    """foxglove.LocationFix messages of WGS84 tracks, written in time order with the frames."""
+
+    def __init__(self, tracks: tuple[GeoTrack, ...], camera_frame: str):
+        self._messages: list[tuple[int, str, dict]] = []
+        for i, track in enumerate(tracks):
+            gnss = track.name == GNSS_NAME
+            topic = GNSS_FIX_TOPIC if gnss else LOCATION_TOPIC.format(name=track.name)
+            rgba = _GNSS_RGBA if gnss else method_color(track.name, i)
+            frame = GNSS_FRAME if gnss else camera_frame
+            for k in range(len(track)):
+                t_ns = int(round(float(track.stamps_s[k]) * 1e9))
+                msg = location_fix(
+                    t_ns,
+                    frame,
+                    track.lat_deg[k],
+                    track.lon_deg[k],
+                    track.height_m[k],
+                    track.sigma_enu_m[k],
+                    rgba,
+                )
+                self._messages.append((t_ns, topic, msg))
+        self._messages.sort(key=lambda m: m[0])
+        self._next = 0
+
+    def write_until(self, writer: McapJsonWriter, t_ns: int | None) -> None:
+        """Write the fixes stamped up to ``t_ns`` (+1 us, float stamps), or all with None."""
+        while self._next < len(self._messages):
+            stamp, topic, msg = self._messages[self._next]
+            if t_ns is not None and stamp > t_ns + 1000:
+                return
+            writer.write(topic, "LocationFix", msg, stamp)
+            self._next += 1
