@@ -394,3 +394,53 @@ def write_plots(out_dir: str | os.PathLike, data: PlotData) -> list[Path]:
     if err is not None:
         written.append(err)
     return written
+
+
+def plot_gnss_track(
+    path: str | os.PathLike,
+    track: Trajectory,
+    name: str,
+    gnss_world_m: np.ndarray,
+    gnss_stamps_s: np.ndarray,
+    outlier: np.ndarray | None = None,
+) -> Path:
+    """The GNSS fixes beside an estimated track (issue 17): top view and distance over time.
+
+    Args:
+        track: the estimate (``fused``, else ``smoothed``); NaN rows leave gaps.
+        name: its method name (legend and colour).
+        gnss_world_m: (G, 3) the fixes in the world frame (ENU at the map's origin) [m].
+        gnss_stamps_s: (G,) their times on the video's clock [s].
+        outlier: (G,) True for the fixes the fusion rejected, or None.
+    """
+    g = np.asarray(gnss_world_m, float).reshape(-1, 3)
+    tg = np.asarray(gnss_stamps_s, float).reshape(-1)
+    bad = np.zeros(len(g), bool) if outlier is None else np.asarray(outlier, bool).reshape(-1)
+    fig = new_figure((12, 5))
+    top, dist = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    p = track.world_t_cam
+    c = _color(name, 0)
+    top.plot(p[:, 0], p[:, 1], color=c, lw=1.2, label=name)
+    top.scatter(g[~bad, 0], g[~bad, 1], s=6, color="#f09c3c", label="GNSS fix")
+    if bad.any():
+        top.scatter(g[bad, 0], g[bad, 1], s=14, color="#d62728", marker="x", label="rejected fix")
+    top.set_title("top view: GNSS fixes and the estimate")
+    top.set_xlabel("east [m]")
+    top.set_ylabel("north [m]")
+    top.set_aspect("equal", adjustable="datalim")
+    top.legend(fontsize=8)
+    ok = np.all(np.isfinite(p), axis=1)
+    t0 = float(min(tg[0] if len(tg) else np.inf, track.stamps_s[0] if len(track) else np.inf))
+    if ok.sum() >= 2 and len(g):
+        t = track.stamps_s[ok]
+        at = np.stack([np.interp(tg, t, p[ok, k], left=np.nan, right=np.nan) for k in range(3)], 1)
+        d = np.linalg.norm((g - at)[:, :2], axis=1)
+        dist.plot(tg[~bad] - t0, d[~bad], ".", ms=3, color="#f09c3c", label="GNSS fix")
+        if bad.any():
+            dist.plot(tg[bad] - t0, d[bad], "x", ms=4, color="#d62728", label="rejected fix")
+        dist.legend(fontsize=8)
+    dist.set_title(f"horizontal distance of each fix from {name}")
+    dist.set_xlabel("time [s]")
+    dist.set_ylabel("distance [m]")
+    dist.grid(alpha=0.3)
+    return _save(fig, Path(path))

@@ -12,6 +12,7 @@ from conftest import valid_map_dict
 from signpose.estimator.estimate import MethodEstimate
 from signpose.estimator.status import PoseStatus
 from signpose.estimator.telemetry import GnssFixes
+from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.geodesy import GeoOrigin, enu_from_geodetic
 from signpose.maps.loader import parse_map
@@ -21,12 +22,14 @@ from signpose.io import mcap as mcap_io
 from signpose.io.geo_out import (
     CSV_HEADER,
     geo_method,
-    geo_outputs,
     gnss_track,
     method_track,
+    run_geo,
+    write_run_geo,
 )
 from signpose.io.mcap_write import GNSS_FIX_TOPIC, write_result_mcap
 from signpose.io.telemetry import read_telemetry
+from signpose.plots import plot_gnss_track
 
 ORIGIN = {"lat_deg": 47.3769, "lon_deg": 8.5417, "height_m": 512.0}
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "foxglove-jsonschema"
@@ -77,11 +80,11 @@ def test_csv_geojson_and_kml_hold_the_same_poses_without_nan(tmp_path):
         np.full(5, 1.5),
         np.full(5, 3.0),
     )
-    gnss_geo = gnss_track(gnss, clock_offset_s=0.3, outlier=np.array([0, 0, 1, 0, 0], bool))
-    files, note = geo_outputs(
-        tmp_path, _map(), {"smoothed": _method("smoothed"), "fused": m}, [gnss_geo]
-    )
-    assert note == "" and [p.name for p in files] == [
+    methods = {"smoothed": _method("smoothed"), "fused": m}
+    geo = run_geo(_map(), methods, gnss, 0.3, outlier=np.array([0, 0, 1, 0, 0], bool))
+    assert geo.note == "" and geo.track.name == "fused" and geo.gnss.status[2] == "outlier"
+    files = write_run_geo(tmp_path, geo)
+    assert [p.name for p in files] == [
         "trajectory_wgs84.csv",
         "trajectory.geojson",
         "trajectory.kml",
@@ -113,15 +116,15 @@ def test_csv_geojson_and_kml_hold_the_same_poses_without_nan(tmp_path):
 
 
 def test_a_map_without_origin_skips_geodetic_outputs_or_refuses_when_asked(tmp_path):
-    files, note = geo_outputs(tmp_path, _map(False), {"fused": _method()})
-    assert files == [] and "need the map's origin" in note
-    assert not (tmp_path / "trajectory.geojson").exists()
+    geo = run_geo(_map(False), {"fused": _method()})
+    assert geo.track is None and "need the map's origin" in geo.note
+    assert write_run_geo(tmp_path, geo) == [] and not list(tmp_path.iterdir())
     with pytest.raises(InputError) as exc:
-        geo_outputs(tmp_path, _map(False), {"fused": _method()}, required=True)
+        run_geo(_map(False), {"fused": _method()}, required=True)
     msg = str(exc.value)
     assert msg.startswith("site.yaml: ") and "origin" in msg and "\n" not in msg
-    files, note = geo_outputs(tmp_path, _map(), {"baseline": _method("baseline")})
-    assert files == [] and "no fused or smoothed pose" in note
+    geo = run_geo(_map(), {"baseline": _method("baseline")})
+    assert geo.track is None and "no fused or smoothed pose" in geo.note
 
 
 def _validate(message: dict) -> None:
@@ -165,3 +168,23 @@ def test_our_location_fix_schema_asks_for_what_foxglove_requires():
     ref = json.loads((REFERENCE / "LocationFix.json").read_text())
     assert set(ref["required"]) <= set(ours["required"])
     assert set(ours["properties"]) <= set(ref["properties"])
+
+
+def test_the_gnss_plot_draws_fixes_beside_the_track(tmp_path):
+    m = _method()
+    n = 6
+    gnss = GnssFixes(
+        T0_S + 0.2 * np.arange(n),
+        np.full(n, 47.3770),
+        8.5417 + 1e-5 * np.arange(n),
+        np.full(n, 530.0),
+        np.full(n, 1.5),
+        np.full(n, 3.0),
+    )
+    geo = run_geo(_map(), {"fused": m}, gnss, outlier=np.arange(n) == 2)
+    assert geo.gnss_world_m.shape == (n, 3)
+    traj = Trajectory.from_matrices(m.stamps_s, m.world_T_cam)
+    path = plot_gnss_track(
+        tmp_path / "gnss.png", traj, "fused", geo.gnss_world_m, geo.gnss.stamps_s, np.arange(n) == 2
+    )
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000

@@ -39,7 +39,7 @@ from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.estimate import MethodEstimate
 from signpose.estimator.telemetry import GnssFixes
-from signpose.maps.geodesy import GeoOrigin, geodetic_from_enu
+from signpose.maps.geodesy import GeoOrigin, enu_from_geodetic, geodetic_from_enu
 from signpose.maps.loader import SignMap
 
 GEO_METHODS = ("fused", "smoothed")
@@ -262,36 +262,77 @@ def write_geo_files(
     return written
 
 
-def geo_outputs(
-    out_dir: str | Path,
+def _no_origin(sign_map: SignMap) -> str:
+    return (
+        f"{sign_map.source or 'the map'}: geodetic outputs (WGS84 CSV, GeoJSON, KML, "
+        "LocationFix) need the map's origin: add origin: {lat_deg: .., lon_deg: .., "
+        "height_m: ..} (maps/SCHEMA.md)"
+    )
+
+
+def check_geo_request(sign_map: SignMap, required: bool) -> None:
+    """Refuse at once a run that asks for geodetic outputs (``--geo``) with a map without origin."""
+    if required and sign_map.origin is None:
+        raise InputError(_no_origin(sign_map))
+
+
+@dataclass(frozen=True)
+class RunGeo:
+    """A run's georeferenced tracks.
+
+    Attributes:
+        track: the fused (else smoothed) track in WGS84, or None (see ``note``).
+        gnss: the fixes on the video's clock, or None without GNSS or origin.
+        gnss_world_m: (G, 3) the fixes in the world frame (ENU at the origin) [m], or None.
+        note: why there are no geodetic outputs ("" when there are).
+    """
+
+    track: GeoTrack | None
+    gnss: GeoTrack | None = None
+    gnss_world_m: np.ndarray | None = None
+    note: str = ""
+
+    def tracks(self) -> tuple[GeoTrack, ...]:
+        """The tracks to draw: the estimate first, then the fixes."""
+        return tuple(t for t in (self.track, self.gnss) if t is not None)
+
+
+def run_geo(
     sign_map: SignMap,
     methods: dict[str, MethodEstimate],
-    others: Sequence[GeoTrack] = (),
+    gnss: GnssFixes | None = None,
+    clock_offset_s: float = 0.0,
+    outlier: np.ndarray | None = None,
     *,
     required: bool = False,
-) -> tuple[list[Path], str]:
-    """The geodetic files of a run, or none and a note saying why.
+) -> RunGeo:
+    """The georeferenced tracks of a run, or none and a note saying why.
 
     Args:
         methods: the run's methods by name (``EstimateResult.methods``).
-        others: tracks to draw beside it (the GNSS fixes).
-        required: the user asked for them: a map without ``origin`` is then an
-            InputError instead of a note.
-
-    Returns:
-        (files written, "" or the one-line note why there are none).
+        gnss: the telemetry's fixes (drawn beside the estimate), or None.
+        clock_offset_s: telemetry minus video time [s] (found or given).
+        outlier: (G,) True for the fixes the fusion rejected, or None.
+        required: the user asked for them (``--geo``): a map without origin
+            is then an InputError instead of a note.
     """
+    check_geo_request(sign_map, required)
     if sign_map.origin is None:
-        note = (
-            f"{sign_map.source or 'the map'}: geodetic outputs (WGS84 CSV, GeoJSON, KML, "
-            "LocationFix) need the map's origin: add origin: {lat_deg: .., lon_deg: .., "
-            "height_m: ..} (maps/SCHEMA.md)"
-        )
-        if required:
-            raise InputError(note)
-        return [], note
+        return RunGeo(None, note=_no_origin(sign_map))
     name = geo_method(methods)
     track = method_track(methods[name], sign_map.origin) if name is not None else None
-    if track is None or len(track) == 0:
-        return [], "no fused or smoothed pose: geodetic outputs skipped"
-    return write_geo_files(out_dir, track, others), ""
+    if track is not None and len(track) == 0:
+        track = None
+    fixes = world = None
+    if gnss is not None and len(gnss):
+        fixes = gnss_track(gnss, clock_offset_s, outlier)
+        world = enu_from_geodetic(sign_map.origin, gnss.lat_deg, gnss.lon_deg, gnss.height_m)
+    note = "" if track is not None else "no fused or smoothed pose: geodetic outputs skipped"
+    return RunGeo(track, fixes, world, note)
+
+
+def write_run_geo(out_dir: str | Path, geo: RunGeo) -> list[Path]:
+    """The geodetic files of a run (none when it has no track)."""
+    if geo.track is None:
+        return []
+    return write_geo_files(out_dir, geo.track, () if geo.gnss is None else (geo.gnss,))

@@ -15,6 +15,7 @@ input                              reader
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 from signpose.core.errors import InputError
@@ -65,6 +66,47 @@ def _kind(p: Path) -> str:
         f"{p}: not a telemetry file signpose reads (DJI .SRT, PX4 .ulg, telemetry CSV, "
         "MCAP or rosbag2 with NavSatFix / Imu)"
     )
+
+
+@dataclass(frozen=True)
+class TelemetryRequest:
+    """What the user asked for with ``--telemetry`` (``signpose run`` / ``estimate``).
+
+    Attributes:
+        path: the telemetry file; None: the run's input log itself (MCAP /
+            rosbag2 with NavSatFix / Imu topics).
+        topic: ``--telemetry-topic``: the log's telemetry topic(s), comma-separated.
+        clock_offset_s: ``--telemetry-offset``: telemetry time minus video time
+            [s]; None: the fusion estimates it.
+    """
+
+    path: Path | None = None
+    topic: str | None = None
+    clock_offset_s: float | None = None
+
+
+def read_requested(
+    request: TelemetryRequest, input_path: str | os.PathLike, video_start_s: float = 0.0
+) -> Telemetry:
+    """The telemetry a request names (the input log itself when its path is None)."""
+    path = request.path if request.path is not None else Path(input_path)
+    return read_telemetry(path, request.topic, video_start_s=video_start_s)
+
+
+def describe(telemetry: Telemetry) -> str:
+    """One line for the user: what was read and what was skipped."""
+    parts = []
+    if telemetry.gnss is not None:
+        parts.append(f"{len(telemetry.gnss)} GNSS fixes")
+    if telemetry.imu is not None:
+        parts.append(f"{len(telemetry.imu)} IMU samples")
+    if telemetry.gimbal is not None:
+        parts.append(f"{len(telemetry.gimbal)} gimbal angles")
+    line = f"telemetry {telemetry.source}: {', '.join(parts) or 'nothing'}"
+    if telemetry.skipped:
+        skipped = ", ".join(f"{v} {k}" for k, v in sorted(telemetry.skipped.items()))
+        line += f"; skipped {skipped}"
+    return line
 
 
 def read_telemetry(
