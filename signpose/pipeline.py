@@ -12,6 +12,14 @@ byte for byte on any machine. Readings that contradict the frame (a code seen
 twice) or the track (another code at a tracked sign's place) are refused and
 listed in report.json.
 
+The flight is cut into chunks of
+``chunk_frames`` source positions (``io.sources.read_range``: a seek to the
+chunk's start), each observed with its own tracking (a full-frame search at
+its start) inline or in one of ``workers`` processes, and the frames are
+written in flight order as chunks finish; the chunks do not depend on the
+number of workers. A process that dies loses its chunk only: the run goes on
+and names the frames in ``problems`` (report.json: ``missing_frames``).
+
 ``run`` = ``observe`` + ``estimator.estimate.estimate_trajectories`` + the
 estimator's files + plots + ``result.mcap`` (+ ``compare`` against a ground
 truth), with the time split by stage (the paper's Table 5) in ``report.json``.
@@ -27,20 +35,22 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import itertools
 import json
 import logging
 import math
+import multiprocessing
+import multiprocessing.connection as mp_connection
 import os
-import queue
 import shutil
+import signal
 import time
 import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import IO
+from typing import IO, Protocol
 
 import numpy as np
 from tqdm import tqdm
@@ -73,7 +83,16 @@ from signpose.io.results import (
     write_outputs,
 )
 from signpose.io.rosbag_write import ResultBag, write_result_bag
-from signpose.io.sources import Frame, FrameSource, PrefetchedFrame, open_source, prefetch
+from signpose.io.sources import (
+    Frame,
+    FrameSource,
+    PrefetchedFrame,
+    RangeRead,
+    SourceSpec,
+    open_source,
+    prefetch,
+    read_range,
+)
 from signpose.maps.loader import SignMap, bundled_map_path, load_map
 from signpose.plots import PlotData, pose_errors, write_plots
 from signpose.report_html import write_run_report
@@ -101,6 +120,19 @@ PREDICTION_AGREES = 0.25
 # A reading of a code seen twice agrees with the frame when the frame's PnP
 # with it reprojects within this [px] RMS (as ``max_track_rms_px``).
 DUPLICATE_MAX_RMS_PX = 4.0
+# Frames per chunk: tracking starts again with a full-frame search at every chunk's
+# start. scripts/bench_observe.py --chunks measured coverage and time for 50 / 100 / 200.
+CHUNK_FRAMES = 100
+# How worker processes start: "forkserver" (copies of a server process that has
+# imported the pipeline and run nothing), not "fork" (a copy of a process that has
+# run OpenCV's, OpenBLAS's or gtsam's threads can hang in their locks). Measured on 8
+# 960x540 frames, 3 chunks, 3 workers, load 6: spawn 8.4 s (every worker imports
+# matplotlib, gtsam, OpenCV: 2.4 s at that load), forkserver 2.1 s after its first start.
+WORKER_START = "forkserver"
+# Seconds a stopping worker process is given before it is killed.
+WORKER_JOIN_S = 2.0
+# A worker's exit code after a MemoryError (its chunk is reported lost, out of memory).
+WORKER_OUT_OF_MEMORY = 75
 
 
 # --------------------------------------------------------------------------- settings / results
@@ -123,13 +155,13 @@ class ObserveSettings:
             predicted sign that is not found makes the detector search the
             full frame).
         cascade_path: detector cascade XML; "" = the bundled one.
-        prefetch: read and decode the input in a background thread.
-        workers: detector threads (0 = 2 on a multi-core machine). At most
-            ``track_lag_frames`` frames are in flight at once, so more
-            workers than that do not help. The output does not depend on it.
+        prefetch: read and decode the input in a background thread (per chunk).
+        workers: processes observing chunks at once (0 = 2 on a multi-core
+            machine; 1 = inline). The output does not depend on it.
         track_lag_frames: tracking predicts frame i from the pose of frame
-            i - this (and the one before it); it lets that many frames be
-            detected at once, whatever ``workers``.
+            i - this (and the one before it).
+        chunk_frames: source positions per chunk; each chunk starts its
+            tracking with a full-frame search. The output depends on it.
         track_refresh_frames: every this many frames after a full-frame
             search, a tracked frame that misses any predicted sign searches
             the full frame again.
@@ -145,6 +177,7 @@ class ObserveSettings:
     workers: int = 0
     track_lag_frames: int = 2
     track_refresh_frames: int = 10
+    chunk_frames: int = CHUNK_FRAMES
 
 
 @dataclass(frozen=True)
@@ -160,6 +193,7 @@ class ObserveResult:
         tracked_frames: frames searched only around predictions.
         full_frames: frames searched over the whole image.
         refused: decoded readings left out of ``frames``, in frame order.
+        lost: chunks whose process died (their frames are missing).
     """
 
     frames: tuple[FrameObservations, ...]
@@ -168,6 +202,7 @@ class ObserveResult:
     tracked_frames: int
     full_frames: int
     refused: tuple[RefusedObservation, ...] = ()
+    lost: tuple[LostChunk, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -597,8 +632,8 @@ def _codes_to_find(settings: ObserveSettings, sign_map: SignMap | None) -> tuple
     return tuple(ALL_CODES)
 
 
-def _no_prefetch(source: FrameSource) -> Iterator[PrefetchedFrame]:
-    for frame in source:
+def _no_prefetch(frames: Iterable[Frame]) -> Iterator[PrefetchedFrame]:
+    for frame in frames:
         t0 = time.perf_counter()
         gray = frame.gray()
         yield PrefetchedFrame(frame, gray, time.perf_counter() - t0)
@@ -613,6 +648,12 @@ def _close(it: Iterator) -> None:
 def make_detector(settings: ObserveSettings) -> Detector:
     """The frontend's detector (``frontend.detector.SignDetector``)."""
     return SignDetector(settings.cascade_path or None)
+
+
+class DetectorFactory(Protocol):
+    """What builds a chunk's detector; a module-level function, so a process can be given it."""
+
+    def __call__(self, settings: ObserveSettings) -> Detector: ...
 
 
 @dataclass(frozen=True)
@@ -630,71 +671,31 @@ class DetectedFrame:
     spent_s: float
 
 
-class DetectorPool:
-    """Detectors that run frames at once (``workers`` threads), or inline (one).
-
-    Detectors keep no state between frames, so any of them may run any frame.
-    A detector passed in is used alone, inline, in frame order.
-    """
-
-    def __init__(
-        self, settings: ObserveSettings, codes: tuple[str, ...], detector: Detector | None
-    ):
-        self.settings = settings
-        self.codes = codes
-        workers = 1 if detector is not None else settings.workers or min(2, os.cpu_count() or 1)
-        self._idle: queue.SimpleQueue[Detector] = queue.SimpleQueue()
-        self._given = detector
-        self._workers = max(1, workers)
-        self._pool: ThreadPoolExecutor | None = None
-
-    def start(self) -> None:
-        """Build the detectors (a bad model file fails here, once)."""
-        if self._given is not None:
-            self._idle.put(self._given)
-            return
-        for _ in range(self._workers):
-            self._idle.put(make_detector(self.settings))
-        if self._workers > 1:
-            self._pool = ThreadPoolExecutor(self._workers, thread_name_prefix="signpose-detect")
-
-    def submit(self, gray: np.ndarray, plan: FramePlan) -> Future[DetectedFrame]:
-        if self._pool is not None:
-            return self._pool.submit(self._detect, gray, plan)
-        done: Future[DetectedFrame] = Future()
-        done.set_result(self._detect(gray, plan))
-        return done
-
-    def _detect(self, gray: np.ndarray, plan: FramePlan) -> DetectedFrame:
-        det = self._idle.get()
-        try:
-            t = time.perf_counter()
-            if plan.predictions:
-                # The detector searches the full frame itself when a prediction is lost.
-                result = det.detect_tracked(gray, plan.predictions, self.codes, plan.refresh)
-                tracked = not result.fell_back
-            else:
-                result = det.detect(gray, self.codes, self.settings.detector_mode)
-                tracked = False
-            return DetectedFrame(result, tracked, time.perf_counter() - t)
-        finally:
-            self._idle.put(det)
-
-    def close(self, pending: Iterable[Future] = ()) -> None:
-        """Stop: cancel what has not started and wait for the rest."""
-        if self._pool is None:
-            return
-        for job in pending:
-            job.cancel()
-        self._pool.shutdown(wait=True, cancel_futures=True)
+def detect_frame(
+    det: Detector, gray: np.ndarray, plan: FramePlan, codes: tuple[str, ...], mode: str
+) -> DetectedFrame:
+    """Run ``det`` on one frame as ``plan`` says."""
+    t = time.perf_counter()
+    if plan.predictions:
+        # The detector searches the full frame itself when a prediction is lost.
+        result = det.detect_tracked(gray, plan.predictions, codes, plan.refresh)
+        tracked = not result.fell_back
+    else:
+        result = det.detect(gray, codes, mode)
+        tracked = False
+    return DetectedFrame(result, tracked, time.perf_counter() - t)
 
 
 @dataclass
 class _Collected:
-    """What ``observe`` gathers while frames finish (frames in order)."""
+    """What observing gathers while frames finish (frames in order).
+
+    ``next_index``: the flight index of the next frame (chunk positions are
+    renumbered: a frame's index counts the frames read before it).
+    """
 
     stream: ObservationStream | None
-    bar: tqdm
+    bar: tqdm | None
     timing: dict[str, float] = field(
         default_factory=lambda: dict.fromkeys(
             ("decode_video", "wait_video", "detect", "decode", "track"), 0.0
@@ -704,13 +705,26 @@ class _Collected:
     refused: list[RefusedObservation] = field(default_factory=list)
     tracked_frames: int = 0
     full_frames: int = 0
+    next_index: int = 0
+    lost: list[LostChunk] = field(default_factory=list)
+    # Instead of all that: frames go here as they are (a worker process's chunk).
+    sink: list[tuple[FrameObservations, tuple[RefusedObservation, ...]]] | None = None
 
     def add(self, obs: FrameObservations, refused: list[RefusedObservation]) -> None:
+        """The next frame of the flight (its index and its refusals' renumbered)."""
+        if self.sink is not None:
+            self.sink.append((obs, tuple(refused)))
+            return
+        if obs.frame != self.next_index:
+            obs = replace(obs, frame=self.next_index)
+            refused = [replace(r, frame=self.next_index) for r in refused]
+        self.next_index += 1
         if self.stream is not None:
             self.stream.append(obs)
         self.frames.append(obs)
         self.refused += refused
-        self.bar.update(1)
+        if self.bar is not None:
+            self.bar.update(1)
 
 
 @dataclass(frozen=True)
@@ -718,11 +732,11 @@ class _Pending:
     position: int
     frame: Frame
     plan: FramePlan
-    job: Future[DetectedFrame]
+    detected: DetectedFrame
 
 
 def _finish_frame(item: _Pending, tracker: FrameTracker, out: _Collected) -> None:
-    detected = item.job.result()
+    detected = item.detected
     t_done = time.perf_counter()
     _add_detector_time(out.timing, detected.result, detected.spent_s)
     if detected.tracked:
@@ -734,15 +748,6 @@ def _finish_frame(item: _Pending, tracker: FrameTracker, out: _Collected) -> Non
     obs, refused = tracker.finish(item.position, obs, item.plan, not detected.tracked)
     out.timing["track"] += time.perf_counter() - t_done
     out.add(obs, refused)
-
-
-def _finish_detected(pending: deque[_Pending], tracker: FrameTracker, out: _Collected) -> None:
-    """After Ctrl-C: finish the frames whose detection is already complete, in order."""
-    while pending:
-        job = pending[0].job
-        if not job.done() or job.cancelled() or job.exception() is not None:
-            return
-        _finish_frame(pending.popleft(), tracker, out)
 
 
 def _frames_timed(frame_iter: Iterator[PrefetchedFrame], timing: dict[str, float]):
@@ -760,28 +765,391 @@ def _frames_timed(frame_iter: Iterator[PrefetchedFrame], timing: dict[str, float
         yield item
 
 
-def _observe_frames(
-    frame_iter: Iterator[PrefetchedFrame],
-    source: FrameSource,
-    camera: CameraModel | None,
+@dataclass(frozen=True)
+class ChunkJob:
+    """What observing one chunk needs (sent to a worker process).
+
+    Attributes:
+        number: the chunk's number (0 = the flight's start).
+        spec: how to open the input.
+        start: first source position (``io.sources.read_range``).
+        stop: the position after the last; None: to the end of the input.
+        size: (width, height) [px] of the flight's frames.
+        sign_map: the map, or None.
+        camera: the camera, or None.
+        codes: codes to look for.
+        settings: frontend settings.
+        make: builds the detector.
+    """
+
+    number: int
+    spec: SourceSpec
+    start: int
+    stop: int | None
+    size: tuple[int, int]
+    sign_map: SignMap | None
+    camera: CameraModel | None
+    codes: tuple[str, ...]
+    settings: ObserveSettings
+    make: DetectorFactory
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """One chunk observed: its frames (``frame`` = source position) and what reading met."""
+
+    number: int
+    frames: tuple[tuple[FrameObservations, tuple[RefusedObservation, ...]], ...]
+    read: RangeRead
+    timing_s: dict[str, float]
+    tracked_frames: int
+    full_frames: int
+
+
+@dataclass(frozen=True)
+class LostChunk:
+    """A chunk whose process died: its frames are not in the flight.
+
+    Attributes:
+        number: the chunk's number.
+        start: its first source position.
+        stop: the position after its last (None: to the end of the input).
+        reason: what happened (exit code or signal).
+    """
+
+    number: int
+    start: int
+    stop: int | None
+    reason: str
+
+    def describe(self, source_name: str) -> str:
+        end = "the end" if self.stop is None else str(self.stop - 1)
+        return (
+            f"{source_name}: frames {self.start} to {end} not observed: the process observing "
+            f"them {self.reason}; the other frames were observed"
+        )
+
+    def to_json(self) -> dict:
+        return {"start": self.start, "stop": self.stop, "reason": self.reason}
+
+
+def _observe_chunk(
+    frames: Iterable[Frame],
     tracker: FrameTracker,
-    pool: DetectorPool,
+    det: Detector,
     out: _Collected,
-    pending: deque[_Pending],
+    prefetched: bool,
 ) -> None:
-    """The frame loop: at most ``track_lag_frames`` frames in flight, finished in order."""
-    lag = max(1, tracker.settings.track_lag_frames)
-    for position, item in enumerate(_frames_timed(frame_iter, out.timing)):
-        if position == 0:
-            if camera is not None:
-                check_image_size(camera, *item.frame.image_size, str(source.path))
-            pool.start()
-        plan = tracker.plan(position)
-        pending.append(_Pending(position, item.frame, plan, pool.submit(item.gray, plan)))
-        while len(pending) >= lag:
+    """One chunk's frame loop: frame i is planned from frame i - ``track_lag_frames``.
+
+    On KeyboardInterrupt the frames already detected are finished first.
+    """
+    s = tracker.settings
+    lag = max(1, s.track_lag_frames)
+    frame_iter = prefetch(frames) if prefetched else _no_prefetch(frames)
+    pending: deque[_Pending] = deque()
+    try:
+        for position, item in enumerate(_frames_timed(frame_iter, out.timing)):
+            plan = tracker.plan(position)
+            detected = detect_frame(det, item.gray, plan, tracker.codes, s.detector_mode)
+            pending.append(_Pending(position, item.frame, plan, detected))
+            while len(pending) >= lag:
+                _finish_frame(pending.popleft(), tracker, out)
+    finally:
+        # Also after Ctrl-C: what is detected is finished, in order.
+        while pending:
             _finish_frame(pending.popleft(), tracker, out)
-    while pending:
-        _finish_frame(pending.popleft(), tracker, out)
+        _close(frame_iter)
+
+
+# Per worker process: the input and the detector, opened once for all its chunks.
+_WORKER_CACHE: dict[tuple, object] = {}
+
+
+def _cached(key: tuple, build: Callable[[], object]):
+    if key not in _WORKER_CACHE:
+        _WORKER_CACHE[key] = build()
+    return _WORKER_CACHE[key]
+
+
+def run_chunk(job: ChunkJob, det: Detector | None = None, out: _Collected | None = None):
+    """Observe one chunk with its own tracking (a full-frame search at its start).
+
+    Args:
+        job: the chunk.
+        det: the detector (default: ``job.make``'s, built once per process).
+        out: where the frames go as they finish (inline); None: into the result.
+
+    Returns:
+        The ChunkResult (its frames empty when ``out`` was given).
+    """
+    source = _cached(("source", job.spec), job.spec.open)
+    if det is None:
+        det = _cached(("detector", job.make, job.settings), lambda: job.make(job.settings))
+    read = RangeRead(job.start, job.stop, job.size)
+    tracker = FrameTracker(job.sign_map, job.camera, job.codes, job.settings)
+    mine = _Collected(None, None, sink=[]) if out is None else out
+    before = dict(mine.timing), mine.tracked_frames, mine.full_frames
+    _observe_chunk(read_range(source, read), tracker, det, mine, job.settings.prefetch)
+    return ChunkResult(
+        job.number,
+        tuple(mine.sink or ()),
+        read,
+        {k: v - before[0].get(k, 0.0) for k, v in mine.timing.items()},
+        mine.tracked_frames - before[1],
+        mine.full_frames - before[2],
+    )
+
+
+def _chunk_worker(conn) -> None:
+    """A worker process: observe the chunks it is sent until it is sent None."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+    while True:
+        try:
+            job = conn.recv()
+        except (EOFError, OSError):
+            return
+        if job is None:
+            return
+        try:
+            answer: object = run_chunk(job)
+        except MemoryError:
+            os._exit(WORKER_OUT_OF_MEMORY)
+        except Exception as exc:  # noqa: BLE001 - raised again in the parent
+            answer = exc
+        conn.send(answer)
+
+
+@dataclass
+class _Worker:
+    process: object  # multiprocessing.Process
+    conn: object  # its end of the pipe
+    job: ChunkJob | None = None
+
+
+class ChunkProcesses:
+    """Worker processes that observe chunks; one that dies loses its chunk only.
+
+    The processes are started with ``WORKER_START`` (not fork: a forked copy of
+    a process that has run OpenCV's or OpenBLAS's threads may hang). A process
+    that dies (killed, out of memory, a library crash) is replaced for the
+    chunks still to do.
+    """
+
+    def __init__(self, workers: int) -> None:
+        self._context = multiprocessing.get_context(WORKER_START)
+        if WORKER_START == "forkserver":
+            # The server imports the pipeline once; each worker is a copy of it.
+            self._context.set_forkserver_preload([__name__])
+        self._wanted = workers
+        self._workers: list[_Worker] = []
+
+    def _start(self) -> _Worker:
+        mine, theirs = self._context.Pipe()
+        process = self._context.Process(
+            target=_chunk_worker, args=(theirs,), name="signpose-chunk", daemon=True
+        )
+        process.start()
+        theirs.close()
+        worker = _Worker(process, mine)
+        self._workers.append(worker)
+        return worker
+
+    def run(self, jobs: Iterable[ChunkJob]) -> Iterator[ChunkResult | LostChunk]:
+        """The chunks' results as they finish (in any order)."""
+        todo = deque(jobs)
+        idle = [self._start() for _ in range(min(self._wanted, len(todo)))]
+        busy: list[_Worker] = []
+        while todo or busy:
+            while todo and idle:
+                worker = idle.pop()
+                worker.job = todo.popleft()
+                worker.conn.send(worker.job)
+                busy.append(worker)
+            waited = [w.conn for w in busy] + [w.process.sentinel for w in busy]
+            ready = set(mp_connection.wait(waited))
+            for worker in [w for w in busy if w.conn in ready or w.process.sentinel in ready]:
+                busy.remove(worker)
+                answer = self._answer(worker)
+                if isinstance(answer, LostChunk):
+                    self._workers.remove(worker)
+                    if todo:
+                        idle.append(self._start())
+                else:
+                    idle.append(worker)
+                if isinstance(answer, BaseException):
+                    raise answer
+                yield answer
+
+    def _answer(self, worker: _Worker) -> ChunkResult | LostChunk | BaseException:
+        job = worker.job
+        assert job is not None
+        try:
+            if worker.conn.poll():
+                return worker.conn.recv()
+        except (EOFError, OSError):
+            pass
+        worker.process.join(WORKER_JOIN_S)
+        code = worker.process.exitcode
+        if code == WORKER_OUT_OF_MEMORY:
+            how = "ran out of memory"
+        elif code is not None and code < 0:
+            how = f"was killed by signal {-code} ({signal.Signals(-code).name})"
+        else:
+            how = f"died (exit code {code})"
+        return LostChunk(job.number, job.start, job.stop, how)
+
+    def close(self) -> None:
+        """Stop every process (SIGTERM, then SIGKILL after ``WORKER_JOIN_S``)."""
+        for worker in self._workers:
+            with contextlib.suppress(OSError, ValueError):
+                worker.conn.send(None)
+                worker.conn.close()
+        deadline = time.monotonic() + WORKER_JOIN_S
+        for worker in self._workers:
+            worker.process.join(max(0.0, deadline - time.monotonic()))
+        for worker in self._workers:
+            if worker.process.is_alive():
+                worker.process.terminate()
+                worker.process.join(WORKER_JOIN_S)
+            if worker.process.is_alive():
+                worker.process.kill()
+        self._workers = []
+
+    def stop(self) -> None:
+        """After Ctrl-C: end every process at once."""
+        for worker in self._workers:
+            with contextlib.suppress(OSError, ValueError):
+                worker.process.kill()
+        for worker in self._workers:
+            worker.process.join(WORKER_JOIN_S)
+        self._workers = []
+
+
+def _worker_count(settings: ObserveSettings) -> int:
+    n = settings.workers or min(2, os.cpu_count() or 1)
+    # A daemonic process (a pool's worker) may not start processes of its own.
+    return 1 if multiprocessing.current_process().daemon else max(1, n)
+
+
+def _chunk_jobs(
+    source: FrameSource,
+    size: tuple[int, int],
+    sign_map: SignMap | None,
+    camera: CameraModel | None,
+    codes: tuple[str, ...],
+    s: ObserveSettings,
+    make: DetectorFactory,
+) -> list[ChunkJob]:
+    """The flight cut every ``chunk_frames`` positions (the last chunk reads to the end)."""
+    n, step = source.range_length or 0, max(1, s.chunk_frames)
+    starts = list(range(0, max(n, 1), step))
+    return [
+        ChunkJob(
+            k,
+            source.spec,
+            start,
+            starts[k + 1] if k + 1 < len(starts) else None,
+            size,
+            sign_map,
+            camera,
+            codes,
+            s,
+            make,
+        )
+        for k, start in enumerate(starts)
+    ]
+
+
+def _first_frame_size(source: FrameSource, camera: CameraModel | None) -> tuple[int, int]:
+    """The flight's frame size: its first readable frame's (checked against the camera)."""
+    read = RangeRead(0, None)
+    frames = read_range(source, read)
+    try:
+        first = next(frames, None)
+    finally:
+        frames.close()
+    if first is None:
+        source.range_problems([read])  # raises the InputError of an unreadable input
+        raise InputError(f"{source.path}: no readable frame")
+    if camera is not None:
+        check_image_size(camera, *first.image_size, str(source.path))
+    return first.image_size
+
+
+def _merge(result: ChunkResult, out: _Collected) -> None:
+    for key, value in result.timing_s.items():
+        out.timing[key] += value
+    out.tracked_frames += result.tracked_frames
+    out.full_frames += result.full_frames
+    for obs, refused in result.frames:
+        out.add(obs, list(refused))
+
+
+def _lose(lost: LostChunk, out: _Collected) -> None:
+    """A chunk's frames are missing: the next chunk's indices still count its positions."""
+    out.lost.append(lost)
+    if lost.stop is not None:
+        out.next_index += lost.stop - lost.start
+
+
+def _observe_chunks(
+    jobs: list[ChunkJob], workers: int, det: Detector | None, out: _Collected
+) -> list[RangeRead]:
+    """Every chunk, in processes or inline; frames streamed in flight order as chunks finish."""
+    if workers <= 1 or det is not None or len(jobs) == 1:
+        det = det or jobs[0].make(jobs[0].settings)
+        return [run_chunk(job, det, out).read for job in jobs]
+    done: dict[int, ChunkResult | LostChunk] = {}
+    reads = {}
+    pool = ChunkProcesses(workers)
+    try:
+        following = 0
+        for answer in pool.run(jobs):
+            done[answer.number] = answer
+            while following in done:
+                item = done.pop(following)
+                if isinstance(item, ChunkResult):
+                    reads[following] = item.read
+                    _merge(item, out)
+                else:
+                    _lose(item, out)
+                following += 1
+    except BaseException:
+        pool.stop()
+        raise
+    pool.close()
+    return [reads[k] for k in sorted(reads)]
+
+
+def _observe_in_order(
+    source: FrameSource,
+    sign_map: SignMap | None,
+    camera: CameraModel | None,
+    codes: tuple[str, ...],
+    s: ObserveSettings,
+    det: Detector,
+    out: _Collected,
+) -> None:
+    """A source read in order only: the same chunks, counted in frames, inline."""
+    frames = iter(source)
+    step = max(1, s.chunk_frames)
+    while True:
+        before = out.next_index
+        chunk = itertools.islice(frames, step)
+        if before == 0:
+            chunk = _size_checked(chunk, camera, str(source.path))
+        tracker = FrameTracker(sign_map, camera, codes, s)
+        _observe_chunk(chunk, tracker, det, out, s.prefetch)
+        if out.next_index - before < step:
+            return
+
+
+def _size_checked(frames: Iterable[Frame], camera: CameraModel | None, name: str):
+    for i, frame in enumerate(frames):
+        if i == 0 and camera is not None:
+            check_image_size(camera, *frame.image_size, name)
+        yield frame
 
 
 def observe(
@@ -792,8 +1160,9 @@ def observe(
     progress: bool = True,
     out_path: str | os.PathLike | None = None,
     detector: Detector | None = None,
+    detector_factory: DetectorFactory | None = None,
 ) -> ObserveResult:
-    """Detect and decode the signs in every frame of ``source``.
+    """Detect and decode the signs in every frame of ``source``, in chunks.
 
     Args:
         source: the frames.
@@ -803,7 +1172,9 @@ def observe(
         settings: frontend settings.
         progress: show a tqdm bar over frames.
         out_path: stream the observations to this JSONL file as they are made.
-        detector: a detector (default: ``make_detector(settings)`` per worker).
+        detector: one detector for every chunk, inline (tests).
+        detector_factory: builds each process's detector (default
+            ``make_detector``); a module-level function.
 
     Returns:
         The ObserveResult. On KeyboardInterrupt the frames done so far are in
@@ -811,21 +1182,21 @@ def observe(
     """
     s = settings or ObserveSettings()
     codes = _codes_to_find(s, sign_map)
-    tracker = FrameTracker(sign_map, camera, codes, s)
-    pool = DetectorPool(s, codes, detector)
+    make = detector_factory or make_detector
     stream = ObservationStream(out_path) if out_path is not None else None
     bar = tqdm(total=source.length, desc="observe", unit="frame", disable=not progress)
     out = _Collected(stream, bar)
-    frame_iter = prefetch(source) if s.prefetch else _no_prefetch(source)
-    pending: deque[_Pending] = deque()
     try:
-        _observe_frames(frame_iter, source, camera, tracker, pool, out, pending)
+        if source.range_length is None or source.spec is None:
+            _observe_in_order(source, sign_map, camera, codes, s, detector or make(s), out)
+            problems = list(source.problems)
+        else:
+            size = _first_frame_size(source, camera)
+            jobs = _chunk_jobs(source, size, sign_map, camera, codes, s, make)
+            reads = _observe_chunks(jobs, _worker_count(s), detector, out)
+            problems = _chunk_problems(source, reads, out.lost)
     except BaseException as exc:
-        if isinstance(exc, KeyboardInterrupt):
-            _finish_detected(pending, tracker, out)
         bar.close()
-        _close(frame_iter)
-        pool.close(p.job for p in pending)
         if stream is not None and isinstance(exc, KeyboardInterrupt):
             kept = stream.finish_partial()
             if kept is not None:
@@ -834,17 +1205,29 @@ def observe(
             stream.abort()
         raise
     bar.close()
-    pool.close()
     if stream is not None:
         stream.finish()
     return ObserveResult(
         frames=tuple(out.frames),
         timing_s=out.timing,
-        problems=tuple(source.problems),
+        problems=tuple(problems),
         tracked_frames=out.tracked_frames,
         full_frames=out.full_frames,
         refused=tuple(out.refused),
+        lost=tuple(out.lost),
     )
+
+
+def _chunk_problems(
+    source: FrameSource, reads: list[RangeRead], lost: list[LostChunk]
+) -> list[str]:
+    """The reading problems of the chunks read, then one line per chunk lost."""
+    lines = []
+    if any(r.good or r.odd for r in reads) or not lost:
+        to_end = not any(c.stop is None for c in lost)
+        lines = source.range_problems(reads, to_end)
+    source.problems = lines + [c.describe(str(source.path)) for c in lost]
+    return list(source.problems)
 
 
 def _add_detector_time(timing: dict[str, float], result: DetectionResult, wall_s: float) -> None:
@@ -931,6 +1314,7 @@ def run(
     progress: bool = True,
     detector: Detector | None = None,
     echo: Callable[[str], None] | None = None,
+    detector_factory: DetectorFactory | None = None,
 ) -> RunResult:
     """Observe, estimate and write every output of one flight into ``out_dir``.
 
@@ -946,6 +1330,7 @@ def run(
         progress: tqdm bars.
         detector: a detector (tests); default ``make_detector``.
         echo: where to print warnings for the user (e.g. stderr), or None.
+        detector_factory: builds each worker process's detector (``observe``).
 
     Returns:
         The RunResult; ``report.json`` in ``out_dir`` holds the same numbers.
@@ -958,9 +1343,8 @@ def run(
     source = flight.open()
     cam = _camera_for(source, camera)
     begun = begin_run(out)
-    obs = observe(
-        source, sign_map, cam, s.observe, progress, out / OBSERVATIONS_NAME, detector=detector
-    )
+    made = {"detector": detector, "detector_factory": detector_factory}
+    obs = observe(source, sign_map, cam, s.observe, progress, out / OBSERVATIONS_NAME, **made)
     for line in obs.problems:
         if echo is not None:
             echo(f"warning: {line}")
@@ -1063,6 +1447,7 @@ def _pipeline_section(
         "input_kind": source.kind,
         "frames": n,
         "problems": list(obs.problems),
+        "missing_frames": [c.to_json() for c in obs.lost],
         "tracking": {"tracked_frames": obs.tracked_frames, "full_frames": obs.full_frames},
         "refused": {
             "counts": result.refused,

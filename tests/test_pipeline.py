@@ -194,22 +194,26 @@ def real_flight(tmp_path_factory):
 
 
 def test_observations_are_byte_identical_for_any_worker_count(real_flight, tmp_path):
+    """Chunks of 3 frames (issue 14): inline with 1 worker, in 2 or 3 worker processes."""
     sign_map = load_map(bundled_map_path())
     written = {}
-    for workers in (1, 2):
+    for workers in (1, 2, 3):
         out = tmp_path / f"w{workers}.jsonl"
         result = pipeline.observe(
             open_source(real_flight.frames_path),
             sign_map,
             real_flight.camera,
-            pipeline.ObserveSettings(workers=workers),
+            pipeline.ObserveSettings(workers=workers, chunk_frames=3),
             progress=False,
             out_path=out,
         )
         written[workers] = out.read_bytes()
-        # Tracking ran (the lag between a pose and the frame it predicts matters).
+        # Tracking ran (the lag between a pose and the frame it predicts matters) and
+        # started again with a full-frame search in each of the 3 chunks.
         assert result.tracked_frames >= 2
-    assert written[1] == written[2]
+        assert result.full_frames >= 3
+        assert [f.frame for f in result.frames] == list(range(8))
+    assert written[1] == written[2] == written[3]
 
 
 def _sign(code: str, u: float, v: float) -> SignObservation:

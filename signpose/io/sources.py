@@ -8,6 +8,7 @@ format, ambiguous topic) raise InputError when the source is opened.
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import os
@@ -16,7 +17,7 @@ import re
 import threading
 import time
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -104,6 +105,8 @@ class FrameSource:
         self.clock = "log"
         self.frame_id: str | None = None
         self._notes: list[str] = []  # problems found on opening, repeated in every pass
+        # open_source's arguments, to open the same input in another process.
+        self.spec: SourceSpec | None = None
 
     def __iter__(self) -> Iterator[Frame]:
         """The frames in order; frames of another size than the first are skipped and counted."""
@@ -132,6 +135,44 @@ class FrameSource:
     def _read(self) -> Iterator[Frame]:
         """The frames as the input holds them (indices from 0 in reading order)."""
         raise NotImplementedError
+
+    @property
+    def range_length(self) -> int | None:
+        """Positions a chunk can start at (``read_range``); None: read in order only."""
+        return None
+
+    def _read_positions(self, start: int, stop: int | None, read: RangeRead) -> Iterator[Frame]:
+        """The frames at positions [start, stop), ``Frame.index`` = position; what went
+        wrong goes into ``read``."""
+        raise NotImplementedError
+
+    def range_problems(self, reads: list[RangeRead], to_end: bool = True) -> list[str]:
+        """The problem lines of the chunks ``reads`` (in order), as one pass in order gives them.
+
+        ``to_end``: the chunk that reads to the end of the input is among ``reads``.
+
+        Raises:
+            InputError: no chunk read a frame.
+        """
+        good = sorted(p for r in reads for p in r.good)
+        lines = list(self._notes) + [n for r in reads for n in r.notes]
+        lines += self._range_tail(reads, sorted(good + [o[0] for o in _odd(reads)]), to_end)
+        odd = _odd(reads)
+        if odd:
+            position, w, h = odd[0]
+            size = next(r.size for r in reads if r.size is not None)
+            lines.append(
+                f"{self.path}: {len(odd)} frame(s) of another size than the first frame's "
+                f"{size[0]}x{size[1]} skipped (first: frame {bisect.bisect_left(good, position)}, "
+                f"{w}x{h})"
+            )
+        for line in lines[len(self._notes) :]:
+            log.info("%s", line)
+        return lines
+
+    def _range_tail(self, reads: list[RangeRead], readable: list[int], to_end: bool) -> list[str]:
+        """What ends a pass (damaged regions, a log cut short); ``readable``: positions read."""
+        return []
 
     def describe(self) -> str:
         n = "?" if self.length is None else str(self.length)
@@ -208,6 +249,50 @@ class VideoSource(FrameSource):
                 f"video stopped at frame {index + damaged.skipped} of {self.length} "
                 f"(the decoder could not read further; truncated or corrupt file)"
             )
+
+    @property
+    def range_length(self) -> int | None:
+        return self.length
+
+    def _read_positions(self, start: int, stop: int | None, read: RangeRead) -> Iterator[Frame]:
+        """From a seek to ``start`` (exact for the simulator's mp4v: tests/test_chunks.py)."""
+        cap = cv2.VideoCapture(str(self.path))
+        try:
+            if start > 0:
+                cap.set(cv2.CAP_PROP_POS_FRAMES, start)
+            position, run, last_ns = start, 0, -1
+            while (stop is None or position < stop) and run <= MAX_FAILED_READS:
+                ok, image = cap.read()
+                if not ok or image is None:
+                    read.failed.append(position)
+                    run += 1
+                else:
+                    run = 0
+                    last_ns = self._stamp_ns(cap, position, last_ns)
+                    yield Frame(position, self.start_ns + last_ns, image)
+                position += 1
+        finally:
+            cap.release()
+
+    def _range_tail(self, reads: list[RangeRead], readable: list[int], to_end: bool) -> list[str]:
+        if not readable:
+            raise InputError(f"{self.path}: video has no readable frames")
+        last = readable[-1]
+        failed = sorted(p for r in reads for p in r.failed if p < last)
+        lines = []
+        if failed:
+            regions = 1 + sum(b != a + 1 for a, b in zip(failed, failed[1:], strict=False))
+            lines.append(
+                f"{self.path}: {len(failed)} unreadable frame(s) skipped in {regions} damaged "
+                f"region(s), the first after frame {bisect.bisect_left(readable, failed[0])}; "
+                "read on past them"
+            )
+        if to_end and self.length is not None and last + 1 < self.length:
+            lines.append(
+                f"{self.path}: video stopped at frame {last + 1} of {self.length} "
+                f"(the decoder could not read further; truncated or corrupt file)"
+            )
+        return lines
 
     def _stamp_ns(self, cap: cv2.VideoCapture, position: int, last_ns: int) -> int:
         """The container's time of the frame just read; position / fps where it has none."""
@@ -324,14 +409,38 @@ class FolderSource(FrameSource):
             if image is None:
                 self._problem(f"{p.name}: {reason}; skipped")
                 continue
-            if image.ndim == 3 and image.shape[2] == 4:
-                image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-            if image.dtype != np.uint8:
-                image = (image / 257).astype(np.uint8)
-            yield Frame(index, stamp_ns, image)
+            yield Frame(index, stamp_ns, _as_bgr8(image))
             index += 1
         if index == 0:
             raise InputError(f"{self.path}: none of the images could be read")
+
+    @property
+    def range_length(self) -> int | None:
+        return len(self.items)
+
+    def _read_positions(self, start: int, stop: int | None, read: RangeRead) -> Iterator[Frame]:
+        end = len(self.items) if stop is None else min(stop, len(self.items))
+        for position in range(start, end):
+            p, stamp_ns = self.items[position]
+            image, reason = _read_image(p)
+            if image is None:
+                read.notes.append(f"{self.path}: {p.name}: {reason}; skipped")
+                continue
+            yield Frame(position, stamp_ns, _as_bgr8(image))
+
+    def _range_tail(self, reads: list[RangeRead], readable: list[int], to_end: bool) -> list[str]:
+        if not readable:
+            raise InputError(f"{self.path}: none of the images could be read")
+        return []
+
+
+def _as_bgr8(image: np.ndarray) -> np.ndarray:
+    """A read image as gray or BGR uint8 (alpha dropped, 16 bits scaled)."""
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    if image.dtype != np.uint8:
+        image = (image / 257).astype(np.uint8)
+    return image
 
 
 def _read_image(p: Path) -> tuple[np.ndarray | None, str]:
@@ -456,6 +565,56 @@ class LogSource(FrameSource):
         if index == 0:
             raise InputError(f"{self.path}: no readable image on {self.topic}")
 
+    @property
+    def range_length(self) -> int | None:
+        return self.length
+
+    def _read_positions(self, start: int, stop: int | None, read: RangeRead) -> Iterator[Frame]:
+        """Messages before ``start`` are read for their stamps only (no image decoded), so a
+        message whose image would not decode counts there for the stamps' order."""
+        last_ns = -1
+        for number, msg in enumerate(self.log.messages([self.topic])):
+            if stop is not None and number >= stop:
+                return
+            if number < start:
+                last_ns = max(last_ns, _stamp_only(msg))
+                continue
+            image, stamp_ns, reason = self._frame_of(msg)
+            if image is None:
+                read.notes.append(f"{self.path}: {self.topic}: message {number}: {reason}; skipped")
+            elif stamp_ns <= last_ns:
+                read.backward.append(number)
+            else:
+                last_ns = stamp_ns
+                yield Frame(number, stamp_ns, image)
+        read.log_problem = self.log.problem or ""
+
+    def _range_tail(self, reads: list[RangeRead], readable: list[int], to_end: bool) -> list[str]:
+        lines = []
+        backward = sorted(p for r in reads for p in r.backward)
+        if backward:
+            lines.append(
+                f"{self.path}: {self.topic}: {len(backward)} image(s) stamped at or before the "
+                f"previous image skipped (first: message {backward[0]}); frame times must increase"
+            )
+        problem = next((r.log_problem for r in reads if r.log_problem), "")
+        if problem:
+            lines.append(f"{self.path}: {problem} (read {len(readable)} images of {self.topic})")
+        if not readable:
+            raise InputError(f"{self.path}: no readable image on {self.topic}")
+        return lines
+
+
+def _stamp_only(msg: LogMessage) -> int:
+    """A message's frame time without decoding its image; -1 where it has none."""
+    if msg.error:
+        return -1
+    try:
+        stamp_ns = message_stamp_ns(msg.schema_name, msg.decoded)
+    except ValueError:
+        return -1
+    return msg.log_time_ns if stamp_ns is None or stamp_ns == 0 else stamp_ns
+
 
 def _image_channel(path: Path, channels: Iterable[LogChannel], topic: str | None) -> LogChannel:
     """The image topic to read: ``topic``, or the log's only image topic."""
@@ -531,7 +690,12 @@ def open_source(
     Raises:
         InputError: missing, empty or unknown input, or an ambiguous topic.
     """
-    p = Path(path)
+    source = _open(Path(path), topic, fps, start_ns)
+    source.spec = SourceSpec(str(path), topic, fps, start_ns)
+    return source
+
+
+def _open(p: Path, topic: str | None, fps: float | None, start_ns: int | None) -> FrameSource:
     if not p.exists():
         raise InputError(f"{p}: input not found")
     if p.is_dir() and not (
@@ -641,3 +805,73 @@ def prefetch(source: FrameSource, depth: int = 4) -> Iterator[PrefetchedFrame]:
     finally:
         stop.set()
         thread.join(timeout=5.0)
+
+
+# --------------------------------------------------------------------------- chunks
+# pipeline.observe reads a flight in chunks of source positions, each on its own
+# (in another process), from a seek where the input has one: a position is a
+# video's frame number, a folder's image number (in time order) or a log topic's
+# message number. A frame's index in the flight is the number of frames of the
+# chunks before it plus its place in its chunk (the caller counts them).
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """What opens the same input again (in another process): ``open_source``'s arguments."""
+
+    path: str
+    topic: str | None = None
+    fps: float | None = None
+    start_ns: int | None = None
+
+    def open(self) -> FrameSource:
+        return open_source(self.path, topic=self.topic, fps=self.fps, start_ns=self.start_ns)
+
+
+@dataclass
+class RangeRead:
+    """What reading the positions [start, stop) of a source met (``read_range``).
+
+    Attributes:
+        start: first position asked for.
+        stop: the position after the last one asked for; None: to the end.
+        size: (width, height) [px] of the flight's frames, or None: the first read's.
+        good: positions read as frames of that size, in order.
+        failed: positions a video's decoder could not read.
+        notes: problem lines of single positions (an unreadable image, a bad message).
+        odd: (position, width, height) of frames of another size, left out.
+        backward: message positions stamped at or before the previous image, left out.
+        log_problem: the log's own problem where reading stopped, else "".
+    """
+
+    start: int
+    stop: int | None
+    size: tuple[int, int] | None = None
+    good: list[int] = field(default_factory=list)
+    failed: list[int] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    odd: list[tuple[int, int, int]] = field(default_factory=list)
+    backward: list[int] = field(default_factory=list)
+    log_problem: str = ""
+
+
+def read_range(source: FrameSource, read: RangeRead) -> Iterator[Frame]:
+    """The frames at positions [read.start, read.stop) of ``source``, ``Frame.index`` = position.
+
+    Needs ``source.range_length`` (not None). Frames of another size than
+    ``read.size`` (default: the first frame's) are left out; what went wrong
+    is recorded in ``read``, and ``source.range_problems`` turns the reads of
+    every chunk into the lines a pass in order gives.
+    """
+    for frame in source._read_positions(read.start, read.stop, read):
+        if read.size is None:
+            read.size = frame.image_size
+        if frame.image_size != read.size:
+            read.odd.append((frame.index, *frame.image_size))
+            continue
+        read.good.append(frame.index)
+        yield frame
+
+
+def _odd(reads: list[RangeRead]) -> list[tuple[int, int, int]]:
+    return sorted(o for r in reads for o in r.odd)
