@@ -1,0 +1,903 @@
+"""GNSS/IMU fusion in the smoother's factor graph (issue 17).
+
+The vision factors are the smoother's own (``smoother._GraphBuilder``: the
+survey, the projection factors, the constant-velocity prior where the IMU has
+no samples); added to them:
+
+* GNSS: one factor per fix on the nearest frame's pose, ``z = t + R a + d``
+  with ``a`` the antenna in the camera frame (``cam_t_antenna_m``: the
+  lever arm) and ``d`` a slowly drifting GNSS error (a ``Point3`` per fix,
+  key ``d<k>``, a random walk of ``gnss_drift_rw``): the receiver's error is
+  not white, so the signs calibrate it where they are seen and it may not
+  pull a bridge by more than its drift. Noise ``Robust(kernel, Diagonal(sigma_h,
+  sigma_h, sigma_v))`` with a redescending kernel (Tukey by default): a
+  multipath burst near the conductors is an outlier, not Gaussian noise. The
+  fix is moved from its time to the frame's by the current velocity.
+* IMU: ``CombinedImuFactor`` between consecutive frames from the samples
+  between them (each sample held over the half-intervals around it), a bias
+  per frame (key ``w<i>``) with the random walks in the factor; the camera is
+  the navigation body, the IMU its sensor (``body_P_sensor`` = cam_T_body).
+* Gimbal: a weak ``PoseRotationPrior3D`` from the reported yaw/pitch/roll
+  (map with an ``origin`` only: the angles are relative to north).
+
+Clock: a frame stamped ``t`` (video) was exposed at telemetry time ``t + offset``
+(``estimator.telemetry``). The offset is fixed by ``clock_offset_s`` or
+estimated: a scan of offsets scoring the gyro (or, without an IMU, the GNSS)
+against the vision trajectory, then a golden-section refinement of the same
+cost; its sigma from the cost's curvature (Gauss-Newton).
+
+Frames: world = the map's frame (ENU at its origin), poses ``world_T_cam``
+(OpenCV axes), IMU body FLU.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import gtsam
+import numpy as np
+from signpose.estimator.camera import CameraModel
+from signpose.estimator.perframe import PerFrameSettings, run_per_frame
+from signpose.estimator.projection import pixels_and_pose_jacobian
+from signpose.estimator.smoother import (
+    BIAS_KEY,
+    CONSTANT_VELOCITY,
+    TUKEY,
+    SmootherResult,
+    SmootherSettings,
+    V,
+    X,
+    _GraphBuilder,
+    _observed_and_signs,
+    _sigmas_from,
+    _velocities,
+    batch_covariances,
+    collect_measurements,
+    default_pose,
+    residuals_px,
+    smooth_batch,
+)
+from signpose.estimator.status import PoseStatus, StatusSettings, classify
+from signpose.estimator.telemetry import GimbalAngles, ImuSamples, Telemetry
+from signpose.frontend.observations import FrameObservations
+from signpose.maps.geodesy import enu_from_geodetic
+from signpose.maps.loader import SignMap
+
+from signpose.core.errors import InputError
+
+log = logging.getLogger(__name__)
+
+GNSS_KERNELS = ("tukey", "geman-mcclure", "huber", "none")
+
+
+def W(i: int) -> int:
+    """The IMU bias at frame i."""
+    return gtsam.symbol("w", i)
+
+
+def D(k: int) -> int:
+    """The GNSS error (drift) at fix k."""
+    return gtsam.symbol("d", k)
+
+
+def _default_body_T_cam() -> tuple[tuple[float, ...], ...]:
+    """Camera looking along the body's x (forward), at the IMU: cam x = -y_b, y = -z_b."""
+    return ((0.0, 0.0, 1.0, 0.0), (-1.0, 0.0, 0.0, 0.0), (0.0, -1.0, 0.0, 0.0), (0, 0, 0, 1.0))
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """What the fusion uses and how it weighs it.
+
+    Attributes:
+        use_vision / use_gnss / use_imu / use_gimbal: which sensors enter the graph.
+        cam_t_antenna_m: the GNSS antenna in the camera frame [m] (lever arm).
+        body_T_cam: (4, 4) the camera's pose in the IMU body (FLU) [m].
+        gnss_kernel: ``"tukey"`` (redescending, the default), ``"geman-mcclure"``
+            (redescending), ``"huber"`` or ``"none"``.
+        gnss_kernel_k: the kernel's threshold on the whitened 3-D residual
+            norm (Tukey: zero weight beyond it).
+        gnss_min_sigma_m: a fix's claimed sigma is raised to at least this [m].
+        gnss_drift_sigma_m: prior sigma of the GNSS error at the first fix [m].
+        gnss_drift_rw: its random walk [m/sqrt(s)].
+        gnss_max_dt_s: a fix further than this from every frame is not used [s].
+        gyro_noise / accel_noise: IMU white noise densities
+            [rad/s/sqrt(Hz)], [m/s^2/sqrt(Hz)].
+        gyro_bias_rw / accel_bias_rw: bias random walks [rad/s^2/sqrt(Hz)],
+            [m/s^3/sqrt(Hz)].
+        gyro_bias_sigma / accel_bias_sigma: prior sigmas of the first bias.
+        imu_max_gap_s: an interval with a longer gap between IMU samples gets
+            the constant-velocity prior instead [s].
+        gravity_m_s2: gravity along -z of the world [m/s^2].
+        gimbal_sigma_rad: sigma of the gimbal's rotation prior [rad].
+        clock_offset_s: telemetry minus video time [s]; None estimates it.
+        clock_search_s: the scan covers +-this around 0 [s].
+        clock_step_s: the scan's step [s].
+        smoother: settings of the vision factors and the motion prior.
+        status: when a pose is weak or suspect.
+        lm_max_iterations: Levenberg-Marquardt cap per stage.
+    """
+
+    use_vision: bool = True
+    use_gnss: bool = True
+    use_imu: bool = True
+    use_gimbal: bool = True
+    cam_t_antenna_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    body_T_cam: tuple[tuple[float, ...], ...] = field(default_factory=_default_body_T_cam)
+    gnss_kernel: str = "tukey"
+    gnss_kernel_k: float = 3.5
+    gnss_min_sigma_m: float = 0.3
+    gnss_drift_sigma_m: float = 3.0
+    gnss_drift_rw: float = 0.15
+    gnss_max_dt_s: float = 0.25
+    gyro_noise: float = 1e-3
+    accel_noise: float = 8e-3
+    gyro_bias_rw: float = 1e-4
+    accel_bias_rw: float = 1e-3
+    gyro_bias_sigma: float = 0.02
+    accel_bias_sigma: float = 0.3
+    imu_max_gap_s: float = 0.05
+    gravity_m_s2: float = 9.80665
+    gimbal_sigma_rad: float = 0.1
+    clock_offset_s: float | None = None
+    clock_search_s: float = 1.5
+    clock_step_s: float = 0.01
+    smoother: SmootherSettings = field(default_factory=lambda: SmootherSettings(kernel=TUKEY))
+    status: StatusSettings = field(default_factory=StatusSettings)
+    lm_max_iterations: int = 100
+
+
+@dataclass(frozen=True)
+class ClockOffset:
+    """The telemetry-minus-video offset [s] and its standard deviation (0 when fixed).
+
+    Attributes:
+        source: ``"fixed"``, ``"gyro"`` (the gyro against the vision
+            rotations) or ``"gnss"`` (the GNSS against the vision positions).
+    """
+
+    offset_s: float
+    sigma_s: float
+    source: str
+
+
+@dataclass(frozen=True)
+class FusionResult:
+    """The fused trajectory ("fused" in outputs).
+
+    Attributes:
+        world_T_cam: (N, 4, 4) pose of every frame.
+        sigma_xyz: (N, 3) marginal position sigmas, world axes [m] (NaN when not computed).
+        cov6: (N, 6, 6) marginal pose covariances (gtsam order), or None.
+        status: (N,) PoseStatus per frame: ``bridged`` where no sign was used
+            (the pose then comes from the IMU/GNSS, its sigma says how well).
+        observed: (N,) True where the frame had projection factors.
+        signs_used: (N,) map signs with factors per frame.
+        velocity_world_m_s: (N, 3) camera velocity [m/s].
+        gyro_bias / accel_bias: (N, 3) the IMU bias per frame (zeros without IMU).
+        gnss_drift_m: (G, 3) the estimated GNSS error at each used fix [m].
+        gnss_used: (G,) index into the telemetry's fixes of each used fix.
+        gnss_outlier: (G,) True for the fixes the kernel rejected.
+        clock: the clock offset.
+        counts: what went in (``frames``, ``gnss_used``, ``gnss_outliers``,
+            ``gnss_outside`` (no frame near), ``imu_factors``, ``cv_factors``,
+            ``gimbal_priors``, ``projection_factors``).
+        landmarks_world: (L, 3) the landmarks at the solution [m].
+        seconds: solve time [s].
+    """
+
+    world_T_cam: np.ndarray
+    sigma_xyz: np.ndarray
+    cov6: np.ndarray | None
+    status: tuple[PoseStatus, ...]
+    observed: np.ndarray
+    signs_used: np.ndarray
+    velocity_world_m_s: np.ndarray
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    gnss_drift_m: np.ndarray
+    gnss_used: np.ndarray
+    gnss_outlier: np.ndarray
+    clock: ClockOffset
+    counts: dict[str, int]
+    landmarks_world: np.ndarray
+    seconds: float = 0.0
+
+
+# ----------------------------------------------------------------- GNSS factors
+
+
+def _gnss_error(z: np.ndarray, arm: np.ndarray):
+    """Error function of a fix: t + R arm + d - z on (X(i), D(k)); Jacobians [rot, trans]."""
+
+    def error(this: gtsam.CustomFactor, v: gtsam.Values, H) -> np.ndarray:
+        pose = v.atPose3(this.keys()[0])
+        d = v.atPoint3(this.keys()[1])
+        R = pose.rotation().matrix()
+        e = pose.translation() + R @ arm + d - z
+        if H is not None:
+            ax = np.array([[0, -arm[2], arm[1]], [arm[2], 0, -arm[0]], [-arm[1], arm[0], 0]])
+            H[0] = np.hstack([-R @ ax, R])
+            H[1] = np.eye(3)
+        return e
+
+    return error
+
+
+def gnss_factor(
+    pose_key: int, drift_key: int, z_world: np.ndarray, arm_cam: np.ndarray, noise
+) -> gtsam.CustomFactor:
+    """A fix ``z_world`` (3,) [m] of the antenna at ``arm_cam`` (3,) in the camera frame."""
+    z = np.asarray(z_world, float).copy()
+    arm = np.asarray(arm_cam, float).copy()
+    return gtsam.CustomFactor(noise, [pose_key, drift_key], _gnss_error(z, arm))
+
+
+def _gnss_noise(sigma: np.ndarray, kernel: str, k: float):
+    base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, float))
+    est = gtsam.noiseModel.mEstimator
+    if kernel == "none":
+        return base
+    make = {"tukey": est.Tukey, "geman-mcclure": est.GemanMcClure, "huber": est.Huber}[kernel]
+    return gtsam.noiseModel.Robust.Create(make.Create(k), base)
+
+
+@dataclass(frozen=True)
+class _Fixes:
+    """The fixes attached to frames: local positions, sigmas, frame and time offset."""
+
+    index: np.ndarray  # (G,) into the telemetry's fixes
+    z_world: np.ndarray  # (G, 3) [m]
+    sigma: np.ndarray  # (G, 3) [m]
+    frame: np.ndarray  # (G,) nearest frame
+    dt_s: np.ndarray  # (G,) fix time minus frame time (video clock) [s]
+    t_s: np.ndarray  # (G,) telemetry time
+    outside: int
+
+
+def _attach_fixes(
+    telemetry: Telemetry, sign_map: SignMap, stamps: np.ndarray, offset: float, s: FusionSettings
+) -> _Fixes | None:
+    g = telemetry.gnss
+    if g is None or len(g) == 0 or not s.use_gnss:
+        return None
+    if sign_map.origin is None:
+        raise InputError(
+            f"{sign_map.source or 'map'}: the map has no 'origin' (WGS84 anchor) to put the GNSS "
+            f"of {telemetry.source} in its frame; add origin: {{lat_deg, lon_deg, height_m}}"
+        )
+    tv = np.asarray(g.t_s, float) - offset
+    j = np.clip(np.searchsorted(stamps, tv), 1, len(stamps) - 1) if len(stamps) > 1 else None
+    if j is None:
+        frame = np.zeros(len(tv), np.int64)
+    else:
+        frame = np.where(np.abs(stamps[j - 1] - tv) <= np.abs(stamps[j] - tv), j - 1, j)
+    dt = tv - stamps[frame]
+    ok = np.abs(dt) <= s.gnss_max_dt_s
+    z = enu_from_geodetic(sign_map.origin, g.lat_deg, g.lon_deg, g.height_m)
+    sig = np.stack([g.sigma_h_m, g.sigma_h_m, g.sigma_v_m], axis=1)
+    sig = np.maximum(np.asarray(sig, float), s.gnss_min_sigma_m)
+    idx = np.nonzero(ok)[0]
+    return _Fixes(
+        idx, z[idx], sig[idx], frame[idx], dt[idx], np.asarray(g.t_s)[idx], int((~ok).sum())
+    )
+
+
+def _add_gnss(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    fixes: _Fixes,
+    vel: np.ndarray,
+    s: FusionSettings,
+    kernel: str,
+) -> list[int]:
+    """GNSS factors and the drift chain; returns each fix's factor index."""
+    arm = np.asarray(s.cam_t_antenna_m, float)
+    out = []
+    for k in range(len(fixes.index)):
+        # The fix was taken dt after the frame: move it back by the velocity.
+        z = fixes.z_world[k] - vel[fixes.frame[k]] * fixes.dt_s[k]
+        noise = _gnss_noise(fixes.sigma[k], kernel, s.gnss_kernel_k)
+        out.append(graph.size())
+        graph.add(gnss_factor(X(int(fixes.frame[k])), D(k), z, arm, noise))
+        values.insert(D(k), np.zeros(3))
+        if k == 0:
+            prior = gtsam.noiseModel.Isotropic.Sigma(3, s.gnss_drift_sigma_m)
+            graph.add(gtsam.PriorFactorPoint3(D(0), np.zeros(3), prior))
+        else:
+            step = max(float(fixes.t_s[k] - fixes.t_s[k - 1]), 1e-3)
+            rw = gtsam.noiseModel.Isotropic.Sigma(3, s.gnss_drift_rw * math.sqrt(step))
+            graph.add(gtsam.BetweenFactorPoint3(D(k - 1), D(k), np.zeros(3), rw))
+    return out
+
+
+# ----------------------------------------------------------------- IMU factors
+
+
+def _imu_params(s: FusionSettings) -> gtsam.PreintegrationCombinedParams:
+    p = gtsam.PreintegrationCombinedParams.MakeSharedU(s.gravity_m_s2)
+    p.setGyroscopeCovariance(np.eye(3) * s.gyro_noise**2)
+    p.setAccelerometerCovariance(np.eye(3) * s.accel_noise**2)
+    p.setIntegrationCovariance(np.eye(3) * 1e-8)
+    p.setBiasOmegaCovariance(np.eye(3) * s.gyro_bias_rw**2)
+    p.setBiasAccCovariance(np.eye(3) * s.accel_bias_rw**2)
+    p.setBodyPSensor(gtsam.Pose3(np.linalg.inv(np.asarray(s.body_T_cam, float))))
+    return p
+
+
+def _preintegrate(pim, imu: ImuSamples, ta: float, tb: float, max_gap: float) -> bool:
+    """Integrate the samples over telemetry times [ta, tb]; False when they do not cover it.
+
+    Sample k holds over [mid(k-1, k), mid(k, k+1)]: no half-sample delay.
+    """
+    t = imu.t_s
+    if len(t) < 2 or ta < t[0] or tb > t[-1]:
+        return False
+    k0 = int(np.searchsorted(t, ta)) - 1
+    k1 = int(np.searchsorted(t, tb)) + 1
+    k0, k1 = max(k0, 0), min(k1, len(t))
+    if np.any(np.diff(t[k0:k1]) > max_gap):
+        return False
+    tt = t[k0:k1]
+    edges = np.concatenate([[-np.inf], 0.5 * (tt[1:] + tt[:-1]), [np.inf]])
+    lo = np.maximum(edges[:-1], ta)
+    hi = np.minimum(edges[1:], tb)
+    acc, gyro = imu.accel_m_s2, imu.gyro_rad_s
+    for m in np.nonzero(hi > lo)[0]:
+        pim.integrateMeasurement(acc[k0 + m], gyro[k0 + m], float(hi[m] - lo[m]))
+    return True
+
+
+def _pims(imu: ImuSamples, tel_stamps: np.ndarray, s: FusionSettings) -> list:
+    """Per frame i, the preintegrated samples from frame i-1 to i, or None (i = 0, gaps)."""
+    params = _imu_params(s)
+    zero = gtsam.imuBias.ConstantBias()
+    out: list = [None]
+    for i in range(1, len(tel_stamps)):
+        pim = gtsam.PreintegratedCombinedMeasurements(params, zero)
+        ok = _preintegrate(pim, imu, tel_stamps[i - 1], tel_stamps[i], s.imu_max_gap_s)
+        out.append(pim if ok else None)
+    return out
+
+
+def _add_imu(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    b: _GraphBuilder,
+    pims: list,
+    s: FusionSettings,
+) -> tuple[int, int]:
+    """IMU factors between frames (the CV prior where not covered); (imu, cv) counts."""
+    zero = gtsam.imuBias.ConstantBias()
+    sig = np.array([s.accel_bias_sigma] * 3 + [s.gyro_bias_sigma] * 3)
+    graph.add(gtsam.PriorFactorConstantBias(W(0), zero, gtsam.noiseModel.Diagonal.Sigmas(sig)))
+    values.insert(W(0), zero)
+    n_imu = n_cv = 0
+    for i in range(1, len(pims)):
+        values.insert(W(i), zero)
+        if pims[i] is not None:
+            graph.add(
+                gtsam.CombinedImuFactor(X(i - 1), V(i - 1), X(i), V(i), W(i - 1), W(i), pims[i])
+            )
+            n_imu += 1
+            continue
+        b.motion_factor(i, graph)
+        rw = np.array([s.accel_bias_rw] * 3 + [s.gyro_bias_rw] * 3) * math.sqrt(b.dt(i))
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.maximum(rw, 1e-9))
+        graph.add(gtsam.BetweenFactorConstantBias(W(i - 1), W(i), zero, noise))
+        n_cv += 1
+    return n_imu, n_cv
+
+
+# ----------------------------------------------------------------- gimbal
+
+
+def world_R_cam_from_gimbal(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """(3, 3) camera (OpenCV axes) in ENU from DJI gimbal angles (yaw from north, clockwise)."""
+    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
+    cz, sz, cy, sy, cx, sx = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1.0]])
+    Ry = np.array([[cy, 0, sy], [0, 1.0, 0], [-sy, 0, cy]])
+    Rx = np.array([[1.0, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ned_R_frd = Rz @ Ry @ Rx
+    enu_R_ned = np.array([[0, 1.0, 0], [1.0, 0, 0], [0, 0, -1.0]])
+    frd_R_cam = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
+    return enu_R_ned @ ned_R_frd @ frd_R_cam
+
+
+def _add_gimbal(
+    graph: gtsam.NonlinearFactorGraph,
+    gimbal: GimbalAngles,
+    tel_stamps: np.ndarray,
+    s: FusionSettings,
+) -> int:
+    if len(gimbal) == 0:
+        return 0
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, s.gimbal_sigma_rad)
+    t = np.asarray(gimbal.t_s, float)
+    n = 0
+    for i, ti in enumerate(tel_stamps):
+        k = int(np.argmin(np.abs(t - ti)))
+        if abs(t[k] - ti) > 0.1:
+            continue
+        R = world_R_cam_from_gimbal(gimbal.yaw_deg[k], gimbal.pitch_deg[k], gimbal.roll_deg[k])
+        graph.add(gtsam.PoseRotationPrior3D(X(i), gtsam.Rot3(R), noise))
+        n += 1
+    return n
+
+
+# ----------------------------------------------------------------- clock offset
+
+
+def _log_so3(R: np.ndarray) -> np.ndarray:
+    """(N, 3) rotation vectors of (N, 3, 3) rotations (angles below pi)."""
+    c = np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
+    angle = np.arccos(c)
+    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
+    scale = np.where(angle < 1e-9, 0.5, angle / (2 * np.sin(np.maximum(angle, 1e-9))))
+    return scale[:, None] * w
+
+
+def _gyro_residuals(
+    world_T_cam: np.ndarray, stamps: np.ndarray, observed: np.ndarray, imu: ImuSamples, s
+):
+    """r(offset) -> (P, 3): vision angular rates minus the mean gyro over each interval.
+
+    Pairs of consecutive observed frames; rates in the camera frame [rad/s];
+    the gyro bias (constant) is removed as the mean residual.
+    """
+    pair = np.nonzero(observed[1:] & observed[:-1])[0] + 1
+    R = world_T_cam[:, :3, :3]
+    dt = np.maximum(stamps[pair] - stamps[pair - 1], 1e-6)
+    w_vis = _log_so3(np.swapaxes(R[pair - 1], 1, 2) @ R[pair]) / dt[:, None]
+    t = np.asarray(imu.t_s, float)
+    g = np.asarray(imu.gyro_rad_s, float)
+    cum = np.concatenate(
+        [np.zeros((1, 3)), np.cumsum(0.5 * (g[1:] + g[:-1]) * np.diff(t)[:, None], 0)]
+    )
+    cam_R_body = np.asarray(s.body_T_cam, float)[:3, :3].T
+
+    def residuals(offset: float) -> np.ndarray:
+        ta, tb = stamps[pair - 1] + offset, stamps[pair] + offset
+        inside = (ta >= t[0]) & (tb <= t[-1])
+        G = np.stack(
+            [np.interp(tb, t, cum[:, a]) - np.interp(ta, t, cum[:, a]) for a in range(3)], 1
+        )
+        r = w_vis - (G / dt[:, None]) @ cam_R_body.T
+        r = r[inside]
+        return (r - r.mean(axis=0) if len(r) else r), np.nonzero(inside)[0]
+
+    return residuals
+
+
+def _gnss_residuals(
+    world_T_cam: np.ndarray,
+    stamps: np.ndarray,
+    observed: np.ndarray,
+    z: np.ndarray,
+    tz: np.ndarray,
+    s,
+):
+    """r(offset) -> (G, 3): GNSS fixes minus the vision antenna at the fix time (mean removed)."""
+    arm = np.asarray(s.cam_t_antenna_m, float)
+    ant = world_T_cam[:, :3, 3] + world_T_cam[:, :3, :3] @ arm
+    seen = np.nonzero(observed)[0]
+
+    def residuals(offset: float) -> np.ndarray:
+        tv = tz - offset
+        j = np.searchsorted(stamps[seen], tv)
+        ok = (j > 0) & (j < len(seen))
+        ok[ok] &= seen[j[ok]] - seen[j[ok] - 1] == 1  # between two observed neighbours
+        if not ok.any():
+            return np.zeros((0, 3)), np.zeros(0, np.int64)
+        a, b = seen[j[ok] - 1], seen[j[ok]]
+        u = ((tv[ok] - stamps[a]) / np.maximum(stamps[b] - stamps[a], 1e-9))[:, None]
+        r = z[ok] - ((1 - u) * ant[a] + u * ant[b])
+        r = r - np.median(r, axis=0)
+        n = np.linalg.norm(r, axis=1, keepdims=True)
+        r = np.where(n > 5.0, r * 5.0 / np.maximum(n, 1e-9), r)  # multipath bounded
+        return r, np.nonzero(ok)[0]
+
+    return residuals
+
+
+def _golden(f, a: float, b: float, tol: float = 1e-5) -> float:
+    """Minimiser of a unimodal f on [a, b] (golden-section search)."""
+    g = (math.sqrt(5) - 1) / 2
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = f(c), f(d)
+    while b - a > tol:
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - g * (b - a)
+            fc = f(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + g * (b - a)
+            fd = f(d)
+    return 0.5 * (a + b)
+
+
+def _scan_and_refine(residuals, s: FusionSettings, source: str) -> ClockOffset:
+    """Coarse scan of the mean squared residual, golden refinement; the sigma by a
+    block jackknife (the residuals are correlated in time: drift, shared poses),
+    at least the Gauss-Newton one.
+
+    ``residuals(offset)`` gives ((P, 3) residuals, (P,) their item ids).
+    """
+
+    def cost(offset: float, drop: np.ndarray | None = None) -> float:
+        r, ids = residuals(offset)
+        if drop is not None:
+            r = r[~np.isin(ids, drop)]
+        return float(np.mean(r**2)) if r.size else float("inf")
+
+    grid = np.arange(-s.clock_search_s, s.clock_search_s + 0.5 * s.clock_step_s, s.clock_step_s)
+
+    def scan(drop: np.ndarray | None = None) -> float:
+        costs = np.array([cost(float(o), drop) for o in grid])
+        if not np.isfinite(costs).any():
+            return float("nan")
+        k = int(np.nanargmin(costs))
+        lo, hi = float(grid[k]) - s.clock_step_s, float(grid[k]) + s.clock_step_s
+        return _golden(lambda o: cost(o, drop), lo, hi)
+
+    best = scan()
+    if not math.isfinite(best):
+        log.warning("clock offset: no overlap of telemetry and vision; using 0")
+        return ClockOffset(0.0, float("nan"), source)
+    r0, ids = residuals(best)
+    h = 1e-3
+    jac = ((residuals(best + h)[0] - residuals(best - h)[0]) / (2 * h)).reshape(-1)
+    gn = float("nan")
+    if r0.size and len(jac) == r0.size and np.any(jac):
+        gn = math.sqrt(float(np.sum(r0**2)) / max(r0.size - 4, 1) / float(jac @ jac))
+    if len(ids) < 2 * JACKKNIFE_BLOCKS:
+        return ClockOffset(best, gn, source)
+    est = np.array([scan(b) for b in np.array_split(np.unique(ids), JACKKNIFE_BLOCKS)])
+    jack = math.sqrt((len(est) - 1) / len(est) * float(np.sum((est - est.mean()) ** 2)))
+    return ClockOffset(best, float(np.nanmax([jack, gn])), source)
+
+
+# Contiguous blocks of the clock residuals left out in turn for the offset's sigma.
+JACKKNIFE_BLOCKS = 10
+
+
+def estimate_clock_offset(
+    world_T_cam: np.ndarray,
+    stamps_s: np.ndarray,
+    observed: np.ndarray,
+    telemetry: Telemetry,
+    sign_map: SignMap,
+    settings: FusionSettings,
+) -> ClockOffset:
+    """The telemetry-minus-video offset from a vision trajectory (gyro first, else GNSS).
+
+    Args:
+        world_T_cam: (N, 4, 4) vision poses; stamps_s: (N,) video times [s];
+        observed: (N,) True where the pose is from signs (not bridged).
+    """
+    s = settings
+    if s.clock_offset_s is not None:
+        return ClockOffset(float(s.clock_offset_s), 0.0, "fixed")
+    if s.use_imu and telemetry.imu is not None and len(telemetry.imu) > 1:
+        res = _gyro_residuals(world_T_cam, stamps_s, observed, telemetry.imu, s)
+        return _scan_and_refine(res, s, "gyro")
+    g = telemetry.gnss
+    if s.use_gnss and g is not None and len(g) > 1 and sign_map.origin is not None:
+        z = enu_from_geodetic(sign_map.origin, g.lat_deg, g.lon_deg, g.height_m)
+        res = _gnss_residuals(world_T_cam, stamps_s, observed, z, np.asarray(g.t_s, float), s)
+        return _scan_and_refine(res, s, "gnss")
+    return ClockOffset(0.0, float("nan"), "none")
+
+
+# ----------------------------------------------------------------- the solve
+
+
+def vision_solve(
+    observations: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    stamps_s: np.ndarray,
+    settings: SmootherSettings,
+) -> SmootherResult:
+    """The vision-only smoother from per-frame PnP: a Huber solve, then ``settings``' kernel."""
+    meas = collect_measurements(observations, sign_map, camera)
+    pnp = run_per_frame(observations, sign_map, camera, "pnp", PerFrameSettings())
+    init = [p.world_T_cam for p in pnp]
+    default = default_pose(sign_map)
+    r = smooth_batch(meas, stamps_s, init, camera, replace(settings, kernel="huber"), default)
+    return smooth_batch(meas, stamps_s, list(r.world_T_cam), camera, settings, default)
+
+
+def _inliers(meas, vision: SmootherResult, camera: CameraModel, s: FusionSettings):
+    """The measurements the vision solution keeps (whitened residual within Tukey's k)."""
+    if not s.use_vision:
+        return meas.subset(np.zeros(len(meas.frame), bool))
+    if len(meas.frame) == 0:
+        return meas
+    res = residuals_px(meas, vision, camera) / meas.sigma_px
+    return meas.subset(res <= s.smoother.tukey_k)
+
+
+def _initial(
+    vision_T: np.ndarray, observed: np.ndarray, stamps: np.ndarray, pims: list | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Initial poses and velocities: vision where signs were seen, IMU dead reckoning between."""
+    poses = np.array(vision_T, float)
+    vel = _velocities(poses, stamps)
+    if pims is None:
+        return poses, vel
+    zero = gtsam.imuBias.ConstantBias()
+    for i in range(1, len(poses)):
+        if observed[i] or pims[i] is None:
+            continue
+        state = pims[i].predict(gtsam.NavState(gtsam.Pose3(poses[i - 1]), vel[i - 1]), zero)
+        poses[i] = state.pose().matrix()
+        vel[i] = state.velocity()
+    return poses, vel
+
+
+@dataclass(frozen=True)
+class _Graph:
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    gnss_factor: list[int]
+    counts: dict[str, int]
+
+
+@dataclass(frozen=True)
+class _Problem:
+    b: _GraphBuilder
+    telemetry: Telemetry
+    tel_stamps: np.ndarray
+    fixes: _Fixes | None
+    pims: list | None
+    enu: bool  # the map has an origin: its frame is ENU (the gimbal's yaw is from north)
+    s: FusionSettings
+
+
+def _build(p: _Problem, poses: np.ndarray, vel: np.ndarray, kernel: str) -> _Graph:
+    """Every factor of the fused graph and the initial values."""
+    b, s = p.b, p.s
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    b.landmark_factors(graph, values)
+    b.first_priors(gtsam.Pose3(poses[0]), graph, 0)
+    values.insert(BIAS_KEY, gtsam.imuBias.ConstantBias())
+    n_proj = 0
+    for i in range(len(poses)):
+        values.insert(X(i), gtsam.Pose3(poses[i]))
+        values.insert(V(i), vel[i])
+        before = graph.size()
+        b.projection_factors(i, graph)
+        n_proj += graph.size() - before
+    if p.pims is not None:
+        n_imu, n_cv = _add_imu(graph, values, b, p.pims, s)
+    else:
+        for i in range(1, len(poses)):
+            b.motion_factor(i, graph)
+        n_imu, n_cv = 0, len(poses) - 1
+    gnss = [] if p.fixes is None else _add_gnss(graph, values, p.fixes, vel, s, kernel)
+    n_gimbal = 0
+    if s.use_gimbal and p.telemetry.gimbal is not None and p.enu:
+        n_gimbal = _add_gimbal(graph, p.telemetry.gimbal, p.tel_stamps, s)
+    counts = {
+        "frames": len(poses),
+        "projection_factors": n_proj,
+        "imu_factors": n_imu,
+        "cv_factors": n_cv,
+        "gnss_used": len(gnss),
+        "gnss_outside": 0 if p.fixes is None else p.fixes.outside,
+        "gimbal_priors": n_gimbal,
+    }
+    return _Graph(graph, values, gnss, counts)
+
+
+def _ordering(p: _Problem, n: int) -> gtsam.Ordering:
+    """Time order (each frame's GNSS drifts, pose, velocity, IMU bias), then the rest.
+
+    The chain ordering of the smoother (``smoother.chain_ordering``) with the
+    fusion's keys in their frames: LM and the one-pass marginals
+    (``smoother.batch_covariances``) both want it.
+    """
+    order = gtsam.Ordering()
+    by_frame: dict[int, list[int]] = {}
+    if p.fixes is not None:
+        for k, i in enumerate(p.fixes.frame.tolist()):
+            by_frame.setdefault(int(i), []).append(k)
+    for i in range(n):
+        for k in by_frame.get(i, ()):
+            order.push_back(D(k))
+        order.push_back(X(i))
+        order.push_back(V(i))
+        if p.pims is not None:
+            order.push_back(W(i))
+    order.push_back(BIAS_KEY)
+    for j in range(len(p.b.m.landmark_code)):
+        order.push_back(gtsam.symbol("l", j))
+    return p.b.ordered(order)
+
+
+def _solve(g: _Graph, order: gtsam.Ordering, s: FusionSettings) -> gtsam.Values:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setOrdering(order)
+    params.setMaxIterations(s.lm_max_iterations)
+    params.setRelativeErrorTol(1e-7)
+    params.setAbsoluteErrorTol(1e-9)
+    opt = gtsam.LevenbergMarquardtOptimizer(g.graph, g.values, params)
+    result = opt.optimize()
+    log.debug("fusion LM: %d iterations, error %.6g", opt.iterations(), opt.error())
+    return result
+
+
+def _statuses(
+    kept, poses: np.ndarray, landmarks: np.ndarray, sigma_xyz: np.ndarray, camera, st
+) -> tuple[PoseStatus, ...]:
+    """Per frame: ``bridged`` without kept keypoints, else ``classify`` on its residuals
+    and its marginal's worst axis (as the smoothed method's statuses)."""
+    order = np.argsort(kept.frame, kind="stable")
+    starts = np.searchsorted(kept.frame[order], np.arange(len(poses) + 1))
+    out = []
+    for i in range(len(poses)):
+        ids = order[starts[i] : starts[i + 1]]
+        if len(ids) == 0:
+            out.append(PoseStatus.BRIDGED)
+            continue
+        uv, _, _ = pixels_and_pose_jacobian(camera, poses[i], landmarks[kept.landmark[ids]])
+        chi2 = float(np.sum(((kept.px[ids] - uv) / kept.sigma_px[ids, None]) ** 2))
+        worst = float(np.max(sigma_xyz[i])) if np.all(np.isfinite(sigma_xyz[i])) else math.inf
+        out.append(classify(len(ids), worst, chi2, 2 * len(ids), st))
+    return tuple(out)
+
+
+def _gnss_outliers(g: _Graph, result: gtsam.Values, fixes: _Fixes | None, k: float) -> np.ndarray:
+    if fixes is None:
+        return np.zeros(0, bool)
+    out = np.zeros(len(g.gnss_factor), bool)
+    for m, idx in enumerate(g.gnss_factor):
+        e = np.asarray(g.graph.at(idx).unwhitenedError(result))
+        out[m] = float(np.linalg.norm(e / fixes.sigma[m])) > k
+    return out
+
+
+def _usable(telemetry: Telemetry | None, s: FusionSettings) -> bool:
+    if telemetry is None:
+        return False
+    streams = [
+        (s.use_gnss, telemetry.gnss),
+        (s.use_imu, telemetry.imu),
+        (s.use_gimbal, telemetry.gimbal),
+    ]
+    return any(use and x is not None and len(x) > 0 for use, x in streams)
+
+
+def _vision_only(vision: SmootherResult, kept, camera, stamps, s: FusionSettings, t0: float):
+    """The vision result as a FusionResult (no telemetry: nothing fused)."""
+    n = len(vision.world_T_cam)
+    return FusionResult(
+        world_T_cam=vision.world_T_cam.copy(),
+        sigma_xyz=vision.sigma_xyz.copy(),
+        cov6=vision.cov6,
+        status=_statuses(
+            kept, vision.world_T_cam, vision.landmarks_world, vision.sigma_xyz, camera, s.status
+        ),
+        observed=vision.observed.copy(),
+        signs_used=vision.signs_used.copy(),
+        velocity_world_m_s=_velocities(vision.world_T_cam, stamps),
+        gyro_bias=np.zeros((n, 3)),
+        accel_bias=np.zeros((n, 3)),
+        gnss_drift_m=np.zeros((0, 3)),
+        gnss_used=np.zeros(0, np.int64),
+        gnss_outlier=np.zeros(0, bool),
+        clock=ClockOffset(float("nan"), float("nan"), "none"),
+        counts={"frames": n},
+        landmarks_world=vision.landmarks_world.copy(),
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _extract(result: gtsam.Values, n: int) -> tuple[np.ndarray, np.ndarray]:
+    poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
+    vel = np.array([result.atVector(V(i)) for i in range(n)]).reshape(n, 3)
+    return poses, vel
+
+
+def _fused_result(p: _Problem, g: _Graph, result: gtsam.Values, clock: ClockOffset, camera, t0):
+    b, s = p.b, p.s
+    n = len(p.tel_stamps)
+    poses, vel = _extract(result, n)
+    n_lm = len(b.m.landmark_code)
+    lms = np.array([result.atPoint3(gtsam.symbol("l", j)) for j in range(n_lm)]).reshape(-1, 3)
+    order = _ordering(p, n)
+    cov6 = batch_covariances(g.graph, result, n, order) if s.smoother.compute_sigmas else None
+    sigma = _sigmas_from(cov6, poses)
+    gb, ab = np.zeros((n, 3)), np.zeros((n, 3))
+    if p.pims is not None:
+        for i in range(n):
+            bias = result.atConstantBias(W(i))
+            gb[i], ab[i] = bias.gyroscope(), bias.accelerometer()
+    n_fix = 0 if p.fixes is None else len(p.fixes.index)
+    drift = np.array([result.atPoint3(D(k)) for k in range(n_fix)]).reshape(-1, 3)
+    outlier = _gnss_outliers(g, result, p.fixes, s.gnss_kernel_k)
+    observed, signs = _observed_and_signs(b.m)
+    counts = dict(g.counts, gnss_outliers=int(outlier.sum()))
+    return FusionResult(
+        world_T_cam=poses,
+        sigma_xyz=sigma,
+        cov6=cov6,
+        status=_statuses(b.m, poses, lms, sigma, camera, s.status),
+        observed=observed,
+        signs_used=signs,
+        velocity_world_m_s=vel,
+        gyro_bias=gb,
+        accel_bias=ab,
+        gnss_drift_m=drift,
+        gnss_used=np.zeros(0, np.int64) if p.fixes is None else p.fixes.index.copy(),
+        gnss_outlier=outlier,
+        clock=clock,
+        counts=counts,
+        landmarks_world=lms,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def fuse_trajectory(
+    observations: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    frame_stamps_s: np.ndarray,
+    telemetry: Telemetry | None,
+    settings: FusionSettings | None = None,
+    vision_result: SmootherResult | None = None,
+) -> FusionResult:
+    """The trajectory from the signs and the drone's GNSS, IMU and gimbal.
+
+    Args:
+        observations: the flight's observations (raw pixels), one per frame.
+        sign_map: the surveyed signs (with an ``origin`` for GNSS and gimbal).
+        camera: the camera.
+        frame_stamps_s: (N,) video time of each frame [s].
+        telemetry: the drone's sensors, or None.
+        settings: what to fuse and how.
+        vision_result: the vision-only smoothed result (initial values, the
+            keypoints it keeps, the clock scan); solved here when None.
+
+    Returns:
+        The FusionResult; without usable telemetry, the vision result as is.
+    """
+    s = settings or FusionSettings()
+    t0 = time.perf_counter()
+    stamps = np.asarray(frame_stamps_s, float)
+    meas = collect_measurements(observations, sign_map, camera)
+    vision = vision_result
+    if vision is None:
+        vision = vision_solve(observations, sign_map, camera, stamps, s.smoother)
+    kept = _inliers(meas, vision, camera, s)
+    if not _usable(telemetry, s):
+        return _vision_only(vision, kept, camera, stamps, s, t0)
+    clock = estimate_clock_offset(
+        vision.world_T_cam, stamps, vision.observed, telemetry, sign_map, s
+    )
+    tel_stamps = stamps + clock.offset_s
+    use_imu = s.use_imu and telemetry.imu is not None and len(telemetry.imu) > 1
+    p = _Problem(
+        b=_GraphBuilder(kept, stamps, camera, replace(s.smoother, motion=CONSTANT_VELOCITY)),
+        telemetry=telemetry,
+        tel_stamps=tel_stamps,
+        fixes=_attach_fixes(telemetry, sign_map, stamps, clock.offset_s, s),
+        pims=_pims(telemetry.imu, tel_stamps, s) if use_imu else None,
+        enu=sign_map.origin is not None,
+        s=s,
+    )
+    poses, vel = _initial(vision.world_T_cam, _observed_and_signs(kept)[0], stamps, p.pims)
+    # A redescending kernel needs a good start: a Huber solve first.
+    kernels = [s.gnss_kernel] if s.gnss_kernel in ("huber", "none") else ["huber", s.gnss_kernel]
+    for kernel in kernels if p.fixes is not None else kernels[-1:]:
+        g = _build(p, poses, vel, kernel)
+        result = _solve(g, _ordering(p, len(stamps)), s)
+        poses, vel = _extract(result, len(stamps))
+    return _fused_result(p, g, result, clock, camera, t0)

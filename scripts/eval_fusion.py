@@ -1,0 +1,316 @@
+"""GNSS/IMU fusion on simulated flights (issue 17): every Number with pass/fail.
+
+Flights: ``signpose.sim.telemetry.away_and_back`` in front of the bundled
+10-sign map (anchored at an arbitrary WGS84 origin): the UAV looks at the signs,
+turns 110 deg away and flies along the line for about 12 s with no sign in
+view, comes back. Observations are synthesised (map keypoints projected with
+0.4 px noise, 1920x1080 60 deg camera, ``sim.observations``); telemetry by
+``sim.telemetry``: GNSS 10 Hz, 1.2 m / 1.8 m white noise, Gauss-Markov drift
+(0.8 / 1.2 m, 60 s), multipath bursts of 5-20 m for 1-3 s near the
+conductors; a 200 Hz MEMS IMU with noise and bias random walks; a clock offset.
+
+Methods on the same flights: vision only (the smoother: the constant-velocity
+prior bridges the sign-free stretch), GNSS only (the fixes interpolated at the
+frame times, lever arm removed with the true attitude), vision+GNSS,
+vision+GNSS+IMU (``estimator.fusion``), each in the frames with signs and in
+the longest stretch without; vision+GNSS+IMU also on the same flight without
+multipath bursts.
+
+Numbers: sign-free stretch error (<= 0.3 m RMS); with signs, fused vs vision
+(within 5 %); multipath rejected and the error in bursts vs burst-free (<=
+1.5x); clock offset error (<= 5 ms for offsets up to 1 s); WGS84 sign centres
+triangulated from the fused poses vs the map's own (<= 2 cm horizontal).
+
+    .venv/bin/python scripts/eval_fusion.py [--seeds 3] [--quick] [--json PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+
+import numpy as np
+from signpose.estimator.camera import pinhole_camera, undistort_px
+from signpose.estimator.fusion import (
+    FusionSettings,
+    estimate_clock_offset,
+    fuse_trajectory,
+    vision_solve,
+)
+from signpose.maps.geodesy import GeoOrigin, enu_from_geodetic, geodetic_from_enu
+from signpose.maps.loader import bundled_map_path, load_map
+
+from signpose.core.fileio import atomic_write
+from signpose.sim.observations import SyntheticSettings, synthesize_observations
+from signpose.sim.telemetry import (
+    TelemetrySimSettings,
+    away_and_back,
+    default_body_T_cam,
+    simulate_telemetry,
+)
+
+ORIGIN = GeoOrigin(47.3769, 8.5417, 480.0)
+
+
+def rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.asarray(x) ** 2))) if len(x) else float("nan")
+
+
+def longest_run(mask: np.ndarray) -> np.ndarray:
+    """Indices of the longest run of True in ``mask``."""
+    best, start = (0, 0), None
+    for i, m in enumerate(np.append(mask, False)):
+        if m and start is None:
+            start = i
+        elif not m and start is not None:
+            if i - start > best[1] - best[0]:
+                best = (start, i)
+            start = None
+    return np.arange(*best)
+
+
+def gnss_only(tel, truth_T: np.ndarray, stamps: np.ndarray, offset: float, arm) -> np.ndarray:
+    """(N, 3) camera positions from the fixes alone, interpolated at the frame times."""
+    g = tel.gnss
+    z = enu_from_geodetic(ORIGIN, g.lat_deg, g.lon_deg, g.height_m)
+    tv = np.asarray(g.t_s) - offset
+    ant = np.stack([np.interp(stamps, tv, z[:, a]) for a in range(3)], axis=1)
+    return ant - np.einsum("nij,j->ni", truth_T[:, :3, :3], np.asarray(arm, float))
+
+
+def triangulate_centres(frames, sign_map, camera, poses: np.ndarray) -> dict[str, np.ndarray]:
+    """Each sign's centre [m] from the rays of its observed centre pixel at ``poses``."""
+    rays: dict[str, list] = {}
+    Kinv = np.linalg.inv(camera.K)
+    for i, f in enumerate(frames):
+        for o in f.signs:
+            if "center" in o.keypoints_px:
+                uv = undistort_px(camera, np.array([o.keypoints_px["center"]], float))[0]
+                d = poses[i, :3, :3] @ (Kinv @ np.array([uv[0], uv[1], 1.0]))
+                rays.setdefault(o.code, []).append((poses[i, :3, 3], d / np.linalg.norm(d)))
+    out = {}
+    for code, rs in rays.items():
+        A, b = np.zeros((3, 3)), np.zeros(3)
+        for c, d in rs:
+            P = np.eye(3) - np.outer(d, d)
+            A += P
+            b += P @ c
+        out[code] = np.linalg.solve(A, b)
+    return out
+
+
+def georef_errors_m(centres: dict[str, np.ndarray], sign_map) -> np.ndarray:
+    """Horizontal distance [m] between each triangulated centre and the map's own, in WGS84."""
+    codes = sorted(centres)
+    lat, lon, h = geodetic_from_enu(ORIGIN, np.array([centres[c] for c in codes]))
+    ref = np.array([sign_map.sign(c).center_m for c in codes])
+    rlat, rlon, rh = geodetic_from_enu(ORIGIN, ref)
+    out = []
+    for k in range(len(codes)):
+        local = GeoOrigin(float(rlat[k]), float(rlon[k]), float(rh[k]))
+        enu = enu_from_geodetic(local, lat[k], lon[k], h[k])[0]
+        out.append(float(np.hypot(enu[0], enu[1])))
+    return np.array(out)
+
+
+def run_flight(seed: int, fps: float, offset: float, quick: bool) -> dict:
+    """Every method on one flight; errors per region."""
+    sign_map = replace(load_map(bundled_map_path()), origin=ORIGIN)
+    camera = pinhole_camera(1920, 1080, 60.0)
+    flight = away_and_back(sign_map, seed=seed)
+    gt = flight.trajectory(fps)
+    truth_T = gt.world_T_cam()
+    rng = np.random.default_rng(1000 + seed)
+    frames, _ = synthesize_observations(sign_map, camera, gt, rng, SyntheticSettings())
+    sim = TelemetrySimSettings(clock_offset_s=offset)
+    tel, truth = simulate_telemetry(flight, sign_map, np.random.default_rng(2000 + seed), sim)
+    tel_clean, _ = simulate_telemetry(
+        flight, sign_map, np.random.default_rng(2000 + seed), replace(sim, multipath=False)
+    )
+    stamps = gt.stamps_s
+    fs = FusionSettings(
+        cam_t_antenna_m=sim.cam_t_antenna_m,
+        body_T_cam=tuple(map(tuple, default_body_T_cam())),
+    )
+    t0 = time.perf_counter()
+    vision = vision_solve(frames, sign_map, camera, stamps, fs.smoother)
+    seen = vision.observed
+    gap = longest_run(~seen)
+
+    def err(P: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(P[:, :3] - truth_T[:, :3, 3], axis=1)
+
+    runs = {
+        "vision": vision.world_T_cam[:, :3, 3],
+        "gnss": gnss_only(tel, truth_T, stamps, offset, sim.cam_t_antenna_m),
+    }
+    fused = {}
+    cases = [("vision+gnss", replace(fs, use_imu=False), tel), ("vision+gnss+imu", fs, tel)]
+    cases.append(("vision+gnss+imu burst-free", fs, tel_clean))
+    for name, settings, telemetry in cases:
+        fused[name] = fuse_trajectory(
+            frames, sign_map, camera, stamps, telemetry, settings, vision_result=vision
+        )
+        runs[name] = fused[name].world_T_cam[:, :3, 3]
+    errors = {k: err(v) for k, v in runs.items()}
+    full = fused["vision+gnss+imu"]
+    # Frames whose nearest fix is in a burst.
+    tv = truth.gnss_t_s - offset
+    nearest = np.abs(stamps[:, None] - tv[None, :]).argmin(axis=1)
+    in_burst = truth.burst[nearest]
+    burst_used = truth.burst[full.gnss_used]
+    centres = triangulate_centres(frames, sign_map, camera, full.world_T_cam)
+    return {
+        "seed": seed,
+        "frames": len(stamps),
+        "gap_s": float(len(gap) / fps),
+        "seconds": time.perf_counter() - t0,
+        "rms_seen_m": {k: rms(e[seen]) for k, e in errors.items()},
+        "rms_gap_m": {k: rms(e[gap]) for k, e in errors.items()},
+        "gap_sigma_median_m": float(np.median(np.linalg.norm(full.sigma_xyz[gap], axis=1))),
+        "burst_frames": int(in_burst.sum()),
+        "rms_burst_m": rms(errors["vision+gnss+imu"][in_burst]),
+        "rms_burst_free_same_frames_m": rms(errors["vision+gnss+imu burst-free"][in_burst]),
+        "burst_fixes": int(burst_used.sum()),
+        "burst_fixes_rejected": int((full.gnss_outlier & burst_used).sum()),
+        "clean_fixes_rejected": int((full.gnss_outlier & ~burst_used).sum()),
+        "clean_fixes": int((~burst_used).sum()),
+        "clock": {"true_s": offset, "est_s": full.clock.offset_s, "sigma_s": full.clock.sigma_s},
+        "georef_h_m": georef_errors_m(centres, sign_map).tolist(),
+        "statuses": {
+            st: sum(1 for x in full.status if x.value == st) for st in ("ok", "weak", "bridged")
+        },
+    }
+
+
+def clock_sweep(seed: int, fps: float, offsets: list[float]) -> list[dict]:
+    """The clock offset estimated from the gyro against the vision rotations, per offset."""
+    sign_map = replace(load_map(bundled_map_path()), origin=ORIGIN)
+    camera = pinhole_camera(1920, 1080, 60.0)
+    flight = away_and_back(sign_map, seed=seed)
+    gt = flight.trajectory(fps)
+    frames, _ = synthesize_observations(
+        sign_map, camera, gt, np.random.default_rng(3000 + seed), SyntheticSettings()
+    )
+    fs = FusionSettings(body_T_cam=tuple(map(tuple, default_body_T_cam())))
+    vision = vision_solve(frames, sign_map, camera, gt.stamps_s, fs.smoother)
+    out = []
+    for k, off in enumerate(offsets):
+        sim = TelemetrySimSettings(clock_offset_s=off)
+        rng = np.random.default_rng(4000 + 100 * seed + k)
+        tel, _ = simulate_telemetry(flight, sign_map, rng, sim)
+        c = estimate_clock_offset(
+            vision.world_T_cam, gt.stamps_s, vision.observed, tel, sign_map, fs
+        )
+        out.append({"seed": seed, "true_s": off, "est_s": c.offset_s, "sigma_s": c.sigma_s})
+    return out
+
+
+def summarise(flights: list[dict], clocks: list[dict]) -> list[dict]:
+    """The issue's Numbers with pass/fail (worst flight for each)."""
+    gap_fused = [f["rms_gap_m"]["vision+gnss+imu"] for f in flights]
+    gap_cv = [f["rms_gap_m"]["vision"] for f in flights]
+    ratio_seen = [f["rms_seen_m"]["vision+gnss+imu"] / f["rms_seen_m"]["vision"] for f in flights]
+    burst_ratio = [
+        f["rms_burst_m"] / f["rms_burst_free_same_frames_m"] for f in flights if f["burst_frames"]
+    ]
+    rejected = sum(f["burst_fixes_rejected"] for f in flights)
+    bursts = sum(f["burst_fixes"] for f in flights)
+    clock_err = [abs(c["est_s"] - c["true_s"]) for c in clocks]
+    geo = [g for f in flights for g in f["georef_h_m"]]
+    return [
+        {
+            "number": "sign-free stretch, fused (GNSS+IMU) RMS [m], worst flight",
+            "value": max(gap_fused),
+            "limit": 0.3,
+            "pass": max(gap_fused) <= 0.3,
+            "beside": {"constant-velocity bridge RMS [m], best flight": min(gap_cv)},
+        },
+        {
+            "number": "with signs: fused RMS / vision-only RMS, worst flight",
+            "value": max(ratio_seen),
+            "limit": 1.05,
+            "pass": max(ratio_seen) <= 1.05,
+        },
+        {
+            "number": "multipath: fused RMS in bursts / same frames burst-free, worst flight",
+            "value": max(burst_ratio) if burst_ratio else float("nan"),
+            "limit": 1.5,
+            "pass": bool(burst_ratio) and max(burst_ratio) <= 1.5,
+            "beside": {"burst fixes rejected": f"{rejected}/{bursts}"},
+        },
+        {
+            "number": "clock offset error [ms], worst of offsets up to 1 s",
+            "value": 1e3 * max(clock_err),
+            "limit": 5.0,
+            "pass": max(clock_err) <= 5e-3,
+        },
+        {
+            "number": "WGS84 sign centres from fused poses, horizontal error [m], worst sign",
+            "value": max(geo),
+            "limit": 0.02,
+            "pass": max(geo) <= 0.02,
+        },
+    ]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=3, help="flights (seeds 0..N-1)")
+    ap.add_argument("--fps", type=float, default=10.0, help="camera frame rate [Hz]")
+    ap.add_argument(
+        "--offsets",
+        default="-1.0,-0.5,0.0,0.137,0.5,1.0",
+        help="clock offsets for the sweep [s], comma-separated",
+    )
+    ap.add_argument("--quick", action="store_true", help="one flight, three offsets")
+    ap.add_argument("--json", help="write all numbers to this JSON file")
+    args = ap.parse_args(argv)
+    seeds = 1 if args.quick else args.seeds
+    offsets = [float(x) for x in args.offsets.split(",")]
+    if args.quick:
+        offsets = offsets[:: max(1, len(offsets) // 3)][:3]
+    flights = []
+    for k in range(seeds):
+        off = offsets[k % len(offsets)]
+        flights.append(run_flight(k, args.fps, off, args.quick))
+        f = flights[-1]
+        print(
+            f"flight {k}: {f['frames']} frames, {f['gap_s']:.1f} s without signs, "
+            f"{f['seconds']:.0f} s to solve; clock {f['clock']['est_s']:+.4f} s "
+            f"(true {off:+.3f}, sigma {1e3 * f['clock']['sigma_s']:.1f} ms)"
+        )
+        for region in ("seen", "gap"):
+            vals = ", ".join(f"{m} {v:.3f}" for m, v in f[f"rms_{region}_m"].items())
+            print(f"  RMS {'with signs' if region == 'seen' else 'sign-free'} [m]: {vals}")
+    clocks = [c for k in range(seeds) for c in clock_sweep(k, args.fps, offsets)]
+    for c in clocks:
+        err_ms = 1e3 * (c["est_s"] - c["true_s"])
+        print(
+            f"clock seed {c['seed']}: true {c['true_s']:+.3f} s, "
+            f"est {c['est_s']:+.4f} s, error {err_ms:+.2f} ms, sigma {1e3 * c['sigma_s']:.2f} ms"
+        )
+    numbers = summarise(flights, clocks)
+    ok = True
+    for n in numbers:
+        ok &= bool(n["pass"])
+        beside = "".join(f"; {k}: {v}" for k, v in n.get("beside", {}).items())
+        print(
+            f"{'PASS' if n['pass'] else 'FAIL'}  {n['number']}: {n['value']:.4g} "
+            f"(limit {n['limit']}){beside}"
+        )
+    if args.json:
+        with atomic_write(args.json) as f:
+            json.dump(
+                {"args": vars(args), "flights": flights, "clock": clocks, "numbers": numbers},
+                f,
+                indent=2,
+            )
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
