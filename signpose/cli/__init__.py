@@ -85,7 +85,7 @@ class DefaultsHelpFormatter(argparse.HelpFormatter):
         default = action.default
         if (
             "default" in text
-            or default in (None, False, argparse.SUPPRESS)
+            or any(default is v for v in (None, False, argparse.SUPPRESS))  # 0 and 0.0 shown
             or action.nargs == 0
             or isinstance(default, list | tuple)
             and not default

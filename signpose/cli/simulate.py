@@ -8,7 +8,7 @@ from pathlib import Path
 
 from signpose.cli import add_quiet
 from signpose.maps.loader import bundled_map_path, load_map
-from signpose.sim.flight import FORMATS, SimSettings, frames_for_duration, simulate
+from signpose.sim.flight import FORMATS, HARD, SimSettings, frames_for_duration, simulate
 from signpose.sim.trajectories import DEFAULT_SPEED_MPS, TRAJECTORIES
 
 
@@ -77,18 +77,56 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="every condition below on at realistic rates (the options below override it)",
     )
-    g.add_argument("--members", type=float, default=None, help="share of signs crossed by a member")
-    g.add_argument("--conductors", type=int, default=None, help="extra conductors in front")
-    g.add_argument("--insulators", action="store_true", default=None, help="insulator strings")
-    g.add_argument("--faded", type=float, default=None, help="share of faces with faded paint")
-    g.add_argument("--glare", type=float, default=None, help="share of faces with specular glare")
-    g.add_argument("--photo", action="store_true", default=None, help="photographs as backgrounds")
     g.add_argument(
-        "--jpeg-range", type=_quality_range, default=None, help="per-frame JPEG quality LO,HI"
+        "--members",
+        type=float,
+        default=None,
+        help=_hard("share of signs crossed by a member", "members"),
     )
-    g.add_argument("--vibration", type=float, default=None, help="vibration blur bursts per s")
     g.add_argument(
-        "--exposure-steps", type=float, default=None, help="auto-exposure gain steps per s"
+        "--conductors",
+        type=int,
+        default=None,
+        help=_hard("extra conductors in front", "conductors"),
+    )
+    g.add_argument(
+        "--insulators",
+        action="store_true",
+        default=None,
+        help=_hard("insulator strings", "insulators"),
+    )
+    g.add_argument(
+        "--faded", type=float, default=None, help=_hard("share of faces with faded paint", "faded")
+    )
+    g.add_argument(
+        "--glare",
+        type=float,
+        default=None,
+        help=_hard("share of faces with specular glare", "glare"),
+    )
+    g.add_argument(
+        "--photo",
+        action="store_true",
+        default=None,
+        help=_hard("photographs as backgrounds", "photo"),
+    )
+    g.add_argument(
+        "--jpeg-range",
+        type=_quality_range,
+        default=None,
+        help=_hard("per-frame JPEG quality LO,HI", "jpeg_range"),
+    )
+    g.add_argument(
+        "--vibration",
+        type=float,
+        default=None,
+        help=_hard("vibration blur bursts per s", "vibration"),
+    )
+    g.add_argument(
+        "--exposure-steps",
+        type=float,
+        default=None,
+        help=_hard("auto-exposure gain steps per s", "exposure_steps"),
     )
     add_quiet(p)
     p.set_defaults(func=run)
@@ -105,6 +143,15 @@ CONDITION_OPTIONS = (
     "vibration",
     "exposure_steps",
 )
+
+
+def _hard(text: str, name: str) -> str:
+    """An option's help with its default (off) and the value --hard gives it."""
+    value = HARD[name]
+    if value is True:
+        return f"{text} (default: off; on with --hard)"
+    shown = ",".join(map(str, value)) if isinstance(value, tuple) else f"{value:g}"
+    return f"{text} (default: off; {shown} with --hard)"
 
 
 def _quality_range(text: str) -> tuple[int, int]:
