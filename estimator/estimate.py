@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.estimator.fusion import FusionResult, FusionSettings, fuse_trajectory
 from signpose.estimator.perframe import FramePose, PerFrameSettings, PoseFailure, run_per_frame
 from signpose.estimator.projection import (
     MIN_DEPTH_M,
@@ -58,6 +59,7 @@ from signpose.estimator.status import (
     classify,
     worst_axis_sigma,
 )
+from signpose.estimator.telemetry import Telemetry
 from signpose.estimator.tuning import MotionChoice, TuningSettings, tune_motion_prior
 from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.maps.loader import MapSign, SignMap
@@ -125,7 +127,7 @@ class MethodEstimate:
     """One method's trajectory over all frames.
 
     Attributes:
-        name: "baseline", "pnp", "smoothed" or "causal".
+        name: "baseline", "pnp", "smoothed", "causal" or "fused".
         stamps_s: (N,) frame times [s].
         world_T_cam: (N, 4, 4) camera poses; identity where not ``valid``.
         valid: (N,) True where the method gives a pose.
@@ -216,6 +218,8 @@ class EstimateResult:
         outliers: the outlier report (empty when the smoother did not run).
         timing_s: stage -> seconds.
         motion: the motion prior chosen from the flight, or None.
+        fusion: the GNSS/IMU fusion (clock offset, GNSS outliers, counts), or
+            None without telemetry.
     """
 
     methods: dict[str, MethodEstimate]
@@ -225,6 +229,7 @@ class EstimateResult:
     outliers: OutlierReport
     timing_s: dict[str, float]
     motion: MotionChoice | None = None
+    fusion: FusionResult | None = None
 
 
 # A per-frame pose spends six of its residuals' degrees of freedom on itself.
@@ -527,6 +532,7 @@ class _SmoothedRun:
     rejected: tuple[Rejection, ...]
     motion: MotionChoice | None
     timing_s: dict[str, float]
+    fusion: FusionResult | None = None  # with telemetry: "fused" is in methods
 
 
 def _rejections(
@@ -623,6 +629,8 @@ def _smoothed(
     s: EstimatorSettings,
     per_frame: dict[str, list[FramePose]],
     progress: bool,
+    telemetry: Telemetry | None = None,
+    fusion: FusionSettings | None = None,
 ) -> _SmoothedRun:
     """The smoother over the flight, started from per-frame PnP (baseline where PnP has none).
 
@@ -675,6 +683,11 @@ def _smoothed(
     if causal.causal_world_T_cam is not None:
         methods["causal"] = _from_smoother("causal", stamps, causal, causal=True)
     down, mis = _outliers(meas, r, frames, sign_map, camera, s, gated)
+    fused = None
+    if telemetry is not None:  # the smoothed graph with the drone's sensors, from its solution
+        fused = fuse_trajectory(frames, sign_map, camera, stamps, telemetry, fusion, r)
+        methods["fused"] = _from_smoother("fused", stamps, fused, status=fused.status)
+        timing["fused"] = fused.seconds
     return _SmoothedRun(
         methods=methods,
         downweighted=down,
@@ -682,6 +695,7 @@ def _smoothed(
         rejected=tuple(rejected + by_innovation + by_kernel),
         motion=motion,
         timing_s=timing,
+        fusion=fused,
     )
 
 
@@ -691,6 +705,8 @@ def estimate_trajectories(
     camera: CameraModel,
     settings: EstimatorSettings | None = None,
     progress: bool = True,
+    telemetry: Telemetry | None = None,
+    fusion: FusionSettings | None = None,
 ) -> EstimateResult:
     """Every requested method's trajectory for one flight.
 
@@ -700,11 +716,12 @@ def estimate_trajectories(
         camera: the camera (its image size must match the observations).
         settings: methods, solver and their settings.
         progress: show tqdm bars over frames.
+        telemetry, fusion: the drone's GNSS/IMU/gimbal (None: nothing changes), its fusion.
 
     Returns:
         The EstimateResult. Methods: "baseline", "pnp", "smoothed" as asked;
         with the iSAM2 solver also "causal" (each frame's estimate right after
-        it was added).
+        it was added); with telemetry also "fused" (``EstimateResult.fusion``).
     """
     s = settings or EstimatorSettings()
     if s.solver not in SOLVERS:
@@ -730,13 +747,13 @@ def estimate_trajectories(
     down: tuple[Outlier, ...] = ()
     mis: tuple[Misdecode, ...] = ()
     rejected_obs: tuple[Rejection, ...] = ()
-    motion = None
+    motion = fused = None
     if "smoothed" in wanted:
-        run = _smoothed(frames, sign_map, camera, s, per_frame, progress)
+        run = _smoothed(frames, sign_map, camera, s, per_frame, progress, telemetry, fusion)
         methods.update(run.methods)
         timing.update(run.timing_s)
         down, mis, rejected_obs = run.downweighted, run.misdecoded, run.rejected
-        motion = run.motion
+        motion, fused = run.motion, run.fusion
     if "smoothed" in methods:
         check_orientations(frames, sign_map, camera, methods["smoothed"])
     rejected = ()
@@ -758,4 +775,5 @@ def estimate_trajectories(
         ),
         timing_s=timing,
         motion=motion,
+        fusion=fused,
     )
