@@ -1,4 +1,4 @@
-"""Benchmark ``signpose run`` on a simulated 1080p flight (the paper's Table 5 split).
+"""Benchmark ``signpose run`` on 1080p flights: frames/s, Table 5 split, ratio to decoding.
 
 Simulates a flight in front of the bundled pylon (not timed; reused when the
 work folder already holds one of the same size), then times the whole run:
@@ -6,7 +6,19 @@ video decoding, detection, sign decoding, tracking, estimation and outputs
 (files, plots, result.mcap). Prints frames per second and the time split by
 stage; ``--json`` writes the same numbers.
 
+Throughput as a ratio (issue 14): in the same run, one after the other, each
+``--repeat`` times, for every scene of ``--scenes`` and every ``--workers``
+value: decode-only (read and convert every frame of the same video to gray)
+and ``signpose run`` (all estimators, plots, MCAP); the ratio is the run's
+frames/s over the decode-only frames/s measured just before it, and min /
+median are over the repeats (a shared machine is noisy: ratios of neighbours
+compare, absolute times do not). Scenes: ``sim`` (the simulator's flight) and
+``independent`` (``scripts/independent_flight.py``: the same trajectory drawn
+without the simulator: photographs behind, members and a conductor in front).
+
     .venv/bin/python scripts/bench_pipeline.py --frames 1000
+    .venv/bin/python scripts/bench_pipeline.py --frames 300 --scenes sim independent \
+        --workers 1 2 --repeat 3 --json /tmp/bench_pipeline.json
 """
 
 from __future__ import annotations
@@ -16,18 +28,22 @@ import json
 import os
 import platform
 import resource
+import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from independent_flight import write_flight
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.smoother import SmootherSettings
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.io.camera_file import load_camera
 from signpose.io.results import read_report
+from signpose.io.sources import open_source
 from signpose.pipeline import ObserveSettings, RunResult, RunSettings, run
 from signpose.sim.flight import SimSettings, simulate, simulated_camera
 
@@ -58,10 +74,36 @@ def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
     return sim.frames_path, sim.groundtruth_path, sim.camera, elapsed
 
 
+def _independent(work: Path, frames: int, width: int, height: int):
+    """The flight of ``scripts/independent_flight.py`` in ``work/independent`` (drawn once)."""
+    out = work / "independent"
+    stamp = out / "bench.json"
+    key = {"frames": frames, "width": width, "height": height}
+    video = out / "video.mp4"
+    if not (stamp.is_file() and video.is_file() and json.loads(stamp.read_text()) == key):
+        write_flight(out, frames, width, height)
+        with atomic_write(stamp) as f:
+            json.dump(key, f)
+    return video, out / "groundtruth.tum", load_camera(out / "camera.yaml")
+
+
 def _cpu_s() -> float:
-    """User + system CPU time of this process and its threads [s]."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
+    """User + system CPU time of this process, its threads and its waited-for children [s]."""
+    total = 0.0
+    for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN):
+        r = resource.getrusage(who)
+        total += r.ru_utime + r.ru_stime
+    return total
+
+
+def _decode_only_fps(video: Path) -> float:
+    """Frames per second of reading and converting every frame to gray, nothing else."""
+    t0 = time.perf_counter()
+    n = 0
+    for frame in open_source(video):
+        frame.gray()
+        n += 1
+    return n / (time.perf_counter() - t0)
 
 
 def result_estimator_timing(run_dir: Path) -> dict:
@@ -87,6 +129,21 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-plots", action="store_true", help="time the run without PNG plots")
     p.add_argument("--no-tracking", action="store_true", help="full-frame detection every frame")
     p.add_argument("--no-sigmas", action="store_true", help="skip the smoother's marginal sigmas")
+    p.add_argument(
+        "--scenes",
+        nargs="+",
+        choices=("sim", "independent"),
+        default=["sim"],
+        help="flights to time (default: sim); independent = scripts/independent_flight.py",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="--workers of each run (default 0: the run's default, 2 on 2 cores)",
+    )
+    p.add_argument("--repeat", type=int, default=1, help="rounds of every configuration")
     p.add_argument("--quiet", action="store_true")
     return p.parse_args(argv)
 
@@ -141,12 +198,11 @@ def _json_data(
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _parse_args(argv)
-    ensure_dir(args.work)
-    video, gt, camera, sim_s = _flight(args.work, args.frames, args.width, args.height, args.quiet)
+def _timed_run(args, scene: str, workers: int, flight) -> tuple[RunResult, float, float]:
+    """One ``signpose run`` of a scene's flight: (result, wall [s], CPU [s])."""
+    video, gt, camera = flight
     settings = RunSettings(
-        observe=ObserveSettings(tracking=not args.no_tracking),
+        observe=ObserveSettings(tracking=not args.no_tracking, workers=workers),
         estimator=EstimatorSettings(smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)),
         plots=not args.no_plots,
     )
@@ -155,23 +211,94 @@ def main(argv: list[str] | None = None) -> int:
     result = run(
         video,
         load_map(bundled_map_path()),
-        args.work / "run",
+        args.work / f"run_{scene}_w{workers}",
         camera=camera,
         gt_path=gt,
         settings=settings,
         progress=not args.quiet,
     )
-    wall = time.perf_counter() - t0
-    cpu = _cpu_s() - cpu0
+    return result, time.perf_counter() - t0, _cpu_s() - cpu0
+
+
+def _summary(values: list[float]) -> dict:
+    return {
+        "min": round(min(values), 4),
+        "median": round(statistics.median(values), 4),
+        "all": [round(v, 4) for v in values],
+    }
+
+
+def _ratio_table(ratios: dict) -> None:
+    """Per scene and worker count: run frames/s, decode-only frames/s, their ratio."""
+    print(
+        f"\n{'scene':12s} {'workers':>7s} {'run f/s':>14s} {'decode f/s':>14s} "
+        f"{'run / decode-only (min / median)':>34s}"
+    )
+    for scene, rows in ratios.items():
+        for key, row in rows.items():
+            if key == "decode_only_fps":
+                continue
+            run_fps, dec, ratio = row["run_fps"], rows["decode_only_fps"], row["ratio"]
+            print(
+                f"{scene:12s} {key[1:]:>7s} {run_fps['median']:14.1f} {dec['median']:14.1f} "
+                f"{ratio['min']:16.3f} / {ratio['median']:.3f}"
+            )
+    print("(ratio of each run to the decode-only pass just before it; min / median over repeats)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    ensure_dir(args.work)
+    flights, sim_s = {}, 0.0
+    for scene in args.scenes:
+        if scene == "sim":
+            video, gt, camera, sim_s = _flight(
+                args.work, args.frames, args.width, args.height, args.quiet
+            )
+            flights[scene] = (video, gt, camera)
+        else:
+            flights[scene] = _independent(args.work, args.frames, args.width, args.height)
+    samples: dict[str, dict[str, list[float]]] = {}
+    first = None
+    for _ in range(args.repeat):
+        for scene, flight in flights.items():
+            for workers in args.workers:
+                decode_fps = _decode_only_fps(flight[0])
+                result, wall, cpu = _timed_run(args, scene, workers, flight)
+                first = first or (scene, workers, result, wall, cpu)
+                row = samples.setdefault(f"{scene}/w{workers}", {"decode": [], "run": []})
+                row["decode"].append(decode_fps)
+                row["run"].append(result.n_frames / wall)
+    scene, workers, result, wall, cpu = first
+    print(f"first run: scene {scene}, --workers {workers}")
     _print_timing(args, result, wall, cpu)
-    est = result_estimator_timing(args.work / "run")
+    est = result_estimator_timing(args.work / f"run_{scene}_w{workers}")
     if est:
         print("estimator split [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in est.items()))
     if sim_s:
         print(f"(simulation, not timed above: {sim_s:.1f} s)")
+    ratios: dict[str, dict] = {}
+    for key, row in samples.items():
+        scene, w = key.split("/")
+        per_run = [r / d for r, d in zip(row["run"], row["decode"], strict=True)]
+        ratios.setdefault(scene, {})[w] = {
+            "run_fps": _summary(row["run"]),
+            "decode_only_fps": _summary(row["decode"]),
+            "ratio": _summary(per_run),
+        }
+        ratios[scene]["decode_only_fps"] = _summary(
+            [d for k, r in samples.items() if k.startswith(scene + "/") for d in r["decode"]]
+        )
+    _ratio_table(ratios)
     if args.json:
+        data = _json_data(args, result, wall, cpu, est) | {
+            "first_run": {"scene": scene, "workers": workers},
+            "repeat": args.repeat,
+            "load_average_1min": round(os.getloadavg()[0], 2),
+            "ratio_to_decode_only": ratios,
+        }
         with atomic_write(args.json) as f:
-            f.write(json.dumps(_json_data(args, result, wall, cpu, est), indent=2) + "\n")
+            f.write(json.dumps(data, indent=2) + "\n")
     return 0
 
 
