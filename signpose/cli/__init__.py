@@ -198,7 +198,8 @@ def add_search(parser: argparse.ArgumentParser) -> None:
         "--workers",
         type=int,
         default=0,
-        help="detector threads (default: 2 if >1 core); the output does not depend on it",
+        help="processes observing the flight's chunks of 100 frames at once (default: 2 if "
+        ">1 core; 1: inline); the output does not depend on it",
     )
 
 
