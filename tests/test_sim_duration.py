@@ -20,7 +20,7 @@ TINY = ["--width", "32", "--height", "18", "--format", "png", "--no-blur", "--no
 
 
 def _simulate(tmp_path, name, *options) -> tuple[str, str]:
-    """Run ``signpose simulate`` into tmp_path/name; (stdout summary line, tum header)."""
+    """Run ``signpose simulate`` into tmp_path/name; (groundtruth.tum's header, its path)."""
     out = tmp_path / name
     assert main(["simulate", "--out", str(out), *TINY, "-q", *options]) == 0
     header = (out / "groundtruth.tum").read_text().splitlines()[0]
@@ -45,6 +45,15 @@ def test_fewer_frames_fly_the_start_of_the_flight_at_its_speed(demo_map, name):
     assert squeezed > 1.5 * mean_short
     # Every flight stays at inspection speeds; the peak never exceeds 8 m/s by default.
     assert 2.0 * speed_stats(full)[0] > speed and peak_short <= speed_stats(full)[1] <= 8.0
+
+
+def test_default_flight_is_the_one_simulate_always_flew(demo_map):
+    """210 frames of climb-hover-depart at its default speed: the old squeezed flight to 1 cm."""
+    name = "climb-hover-depart"
+    now = make_trajectory(name, demo_map, 210, 30.0, speed_mps=DEFAULT_SPEED_MPS[name])
+    old = make_trajectory(name, demo_map, 210, 30.0)
+    assert np.abs(now.world_t_cam - old.world_t_cam).max() < 0.012
+    assert speed_stats(now)[0] == pytest.approx(speed_stats(old)[0], rel=0.01)
 
 
 @pytest.mark.parametrize("name", TRAJECTORIES)
