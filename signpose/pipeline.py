@@ -59,8 +59,10 @@ from signpose.core.errors import InputError, OutputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.camera import CameraModel, check_image_size, pixel_from_world_point
 from signpose.estimator.estimate import EstimateResult, EstimatorSettings, estimate_trajectories
+from signpose.estimator.fusion import FusionSettings
 from signpose.estimator.perframe import solve_frame_pnp
 from signpose.estimator.refine import refine_flight
+from signpose.estimator.telemetry import Telemetry
 from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.detector import (
     DetectionResult,
@@ -72,6 +74,15 @@ from signpose.frontend.detector import (
 from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.frontend.sign import ALL_CODES
 from signpose.io import mcap as mcap_io
+from signpose.io.geo_out import (
+    RunGeo,
+    check_anchor,
+    check_geo_request,
+    fused_clock_and_outliers,
+    fusion_summary,
+    run_geo,
+    write_run_geo,
+)
 from signpose.io.groundtruth import check_time_overlap, read_ground_truth
 from signpose.io.observations import append_observation
 from signpose.io.results import (
@@ -93,8 +104,9 @@ from signpose.io.sources import (
     prefetch,
     read_range,
 )
+from signpose.io.telemetry import TelemetryRequest, check_overlap, describe, read_requested
 from signpose.maps.loader import SignMap, bundled_map_path, load_map
-from signpose.plots import PlotData, pose_errors, write_plots
+from signpose.plots import PlotData, plot_gnss_track, pose_errors, write_plots
 from signpose.report_html import write_run_report
 from signpose.sim.flight import SimSettings, simulate
 
@@ -219,6 +231,9 @@ class RunSettings:
         start_ns: first frame's time of a video or ``fps`` folder [ns since 1970];
             None: the video's own creation_time, else 0.
         gt_offset_s: added to the ground truth's stamps [s] (``--gt-offset``).
+        telemetry: the drone's GNSS/IMU to fuse (``--telemetry``), or None.
+        geo: the user asked for the WGS84 outputs (``--geo``): a map without
+            origin is refused; otherwise they are written when the map has one.
     """
 
     observe: ObserveSettings = field(default_factory=ObserveSettings)
@@ -229,6 +244,8 @@ class RunSettings:
     ros2_bag: bool = False
     start_ns: int | None = None
     gt_offset_s: float = 0.0
+    telemetry: TelemetryRequest | None = None
+    geo: bool = False
 
 
 @dataclass(frozen=True)
@@ -249,6 +266,8 @@ class RunResult:
         files: every file written.
         refused: refusal reason -> decoded readings refused (listed in report.json).
         status: method -> share of each pose status token (ok, weak, bridged, ...).
+        notes: what the user should know that is not a problem (telemetry read,
+            geodetic outputs skipped).
     """
 
     out_dir: Path
@@ -263,6 +282,7 @@ class RunResult:
     files: tuple[Path, ...]
     refused: dict[str, int] = field(default_factory=dict)
     status: dict[str, dict[str, float]] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
 
 # --------------------------------------------------------------------------- observations stream
@@ -1288,6 +1308,73 @@ def _valid_only(traj: Trajectory) -> Trajectory:
     return Trajectory(traj.stamps_s[ok], traj.world_t_cam[ok], traj.quat_xyzw[ok])
 
 
+@dataclass
+class _RunTelemetry:
+    """A run's telemetry (issue 17): what was asked, what was read, notes for the user."""
+
+    request: TelemetryRequest | None
+    telemetry: Telemetry | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def _telemetry_for(s: RunSettings, sign_map: SignMap, flight, source: FrameSource):
+    """Read the requested telemetry (before observing: a bad file stops the run at once)."""
+    check_geo_request(sign_map, s.geo)
+    tel = _RunTelemetry(s.telemetry)
+    if s.telemetry is not None:
+        start_s = (getattr(source, "start_ns", None) or 0) * 1e-9  # an SRT's time zero
+        tel.telemetry = read_requested(s.telemetry, flight.input_path, start_s)
+        check_anchor(sign_map, tel.telemetry)
+        tel.notes.append(describe(tel.telemetry))
+    return replace(flight, telemetry=tel)
+
+
+def _estimate(frames, sign_map: SignMap, cam: CameraModel, s: RunSettings, progress, tel):
+    """estimate_trajectories, with the telemetry fused when the run has some."""
+    frames = list(frames)
+    if tel is None or tel.telemetry is None:
+        return estimate_trajectories(frames, sign_map, cam, s.estimator, progress)
+    stamps = np.array([f.stamp_ns for f in frames], float) * 1e-9
+    check_overlap(tel.telemetry, stamps, tel.request.clock_offset_s)
+    fusion = FusionSettings(clock_offset_s=tel.request.clock_offset_s)
+    return estimate_trajectories(
+        frames, sign_map, cam, s.estimator, progress, telemetry=tel.telemetry, fusion=fusion
+    )
+
+
+def _run_geo(s: RunSettings, sign_map: SignMap, estimate: EstimateResult, tel) -> RunGeo:
+    """The run's WGS84 tracks; the note why there are none goes to the user with telemetry."""
+    telemetry = tel.telemetry if tel is not None else None
+    gnss, offset, outlier = None, 0.0, None
+    if telemetry is not None and telemetry.gnss is not None:
+        gnss = telemetry.gnss
+        given = tel.request.clock_offset_s
+        offset, outlier = fused_clock_and_outliers(estimate.fusion, gnss, given)
+        if estimate.fusion is not None:
+            tel.notes.append(fusion_summary(estimate.fusion))
+    geo = run_geo(sign_map, estimate.methods, gnss, offset, outlier, required=s.geo)
+    if geo.note and telemetry is not None:
+        tel.notes.append(f"note: {geo.note}")
+    return geo
+
+
+def _gnss_plot(out: Path, geo: RunGeo, trajs: dict[str, Trajectory]) -> list[Path]:
+    """gnss.png: the fixes beside the georeferenced track, when the run has both."""
+    if geo.track is None or geo.gnss is None or geo.track.name not in trajs:
+        return []
+    outlier = np.array([t == "outlier" for t in geo.gnss.status], bool)
+    return [
+        plot_gnss_track(
+            out / "gnss.png",
+            trajs[geo.track.name],
+            geo.track.name,
+            geo.gnss_world_m,
+            geo.gnss.stamps_s,
+            outlier,
+        )
+    ]
+
+
 @dataclass(frozen=True)
 class _Flight:
     """One flight's inputs as ``run`` was given them."""
@@ -1296,6 +1383,7 @@ class _Flight:
     topic: str | None
     fps: float | None
     start_ns: int | None = None
+    telemetry: _RunTelemetry | None = None
 
     def open(self) -> FrameSource:
         return open_source(self.input_path, topic=self.topic, fps=self.fps, start_ns=self.start_ns)
@@ -1342,7 +1430,7 @@ def run(
     gt = read_ground_truth(gt_path, s.gt_offset_s) if gt_path is not None else None
     source = flight.open()
     cam = _camera_for(source, camera)
-    begun = begin_run(out)
+    flight, begun = _telemetry_for(s, sign_map, flight, source), begin_run(out)
     made = {"detector": detector, "detector_factory": detector_factory}
     obs = observe(source, sign_map, cam, s.observe, progress, out / OBSERVATIONS_NAME, **made)
     for line in obs.problems:
@@ -1351,7 +1439,7 @@ def run(
     check_codes_seen(obs.frames, sign_map, str(source.path))
     _check_gt_overlap(obs.frames, source.path, gt, gt_path)
     t0 = time.perf_counter()
-    estimate = estimate_trajectories(list(obs.frames), sign_map, cam, s.estimator, progress)
+    estimate = _estimate(obs.frames, sign_map, cam, s, progress, flight.telemetry)
     timing = {**obs.timing_s, "estimate": time.perf_counter() - t0}
 
     t0 = time.perf_counter()
@@ -1377,6 +1465,7 @@ def run(
         problems=tuple(obs.problems),
         files=tuple(files),
         refused=refusal_counts(obs.refused),
+        notes=tuple(flight.telemetry.notes),
     )
     section = _pipeline_section(result, source, obs, s) | {"run_id": begun.run_id}
     return _write_reports(out, result, section, begun)
@@ -1409,13 +1498,15 @@ def _write_run_files(
     camera_frame = frame_id or mcap_io.CAMERA_FRAME  # the input's own name, if it has one
     refined = refine_flight(list(obs.frames), sign_map, camera, estimate)
     files = [Path(p) for p in write_outputs(out, estimate, refined)]
+    geo = _run_geo(s, sign_map, estimate, flight.telemetry)
+    files += write_run_geo(out, geo)
     if s.plots:
         stamps = np.array([f.stamp_ns for f in obs.frames], float) * 1e-9
         map_codes = set(sign_map.codes)
         seen = np.array([sum(o.code in map_codes for o in f.signs) for f in obs.frames])
         statuses = {k: tuple(st.value for st in m.status) for k, m in estimate.methods.items()}
         plot_data = PlotData(sign_map, trajs, sigmas, gt, stamps, seen, statuses=statuses)
-        files += write_plots(out, plot_data)
+        files += write_plots(out, plot_data) + _gnss_plot(out, geo, trajs)
     if s.mcap:
         images = None
         if s.with_images:
@@ -1429,6 +1520,7 @@ def _write_run_files(
             images,
             progress=progress,
             camera_frame=camera_frame,
+            geo_tracks=geo.tracks(),
         )
         files.append(out / RESULT_MCAP_NAME)
     if s.ros2_bag:

@@ -6,13 +6,26 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from signpose.cli import add_quiet
+from signpose.cli.run import add_telemetry, telemetry_request
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
+from signpose.estimator.fusion import FusionSettings
 from signpose.estimator.refine import refine_flight
 from signpose.io.camera_file import load_camera
+from signpose.io.geo_out import (
+    check_anchor,
+    check_geo_request,
+    fused_clock_and_outliers,
+    fusion_summary,
+    run_geo,
+    write_run_geo,
+)
 from signpose.io.observations import read_observations
 from signpose.io.results import status_line, write_outputs
+from signpose.io.telemetry import check_overlap, describe, read_requested
 from signpose.maps.loader import load_map
 
 
@@ -56,6 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="keep the motion prior's default strength (default: chosen from the flight)",
     )
+    add_telemetry(p, log_input=False)
     add_quiet(p)
     p.set_defaults(func=run)
 
@@ -65,6 +79,15 @@ def run(args: argparse.Namespace) -> int:
     sign_map = load_map(args.map)
     camera = load_camera(args.camera)
     check_inputs(frames, sign_map, camera, str(args.observations))
+    request = telemetry_request(args, log_input=False)
+    check_geo_request(sign_map, args.geo)
+    telemetry, notes = None, []
+    if request is not None:
+        stamps = np.array([f.stamp_ns for f in frames], float) * 1e-9
+        telemetry = read_requested(request, args.observations, float(stamps[0]))
+        check_anchor(sign_map, telemetry)
+        check_overlap(telemetry, stamps, request.clock_offset_s)
+        notes.append(describe(telemetry))
     settings = EstimatorSettings()
     if args.method == "all":
         methods = ("baseline", "pnp", "smoothed")
@@ -91,9 +114,15 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.fixed_motion_prior:
         settings = replace(settings, tune_motion=False)
-    result = estimate_trajectories(frames, sign_map, camera, settings, progress=args.progress)
+    fusion = FusionSettings(clock_offset_s=request.clock_offset_s) if request else None
+    result = estimate_trajectories(
+        frames, sign_map, camera, settings, args.progress, telemetry=telemetry, fusion=fusion
+    )
     refined = refine_flight(frames, sign_map, camera, result)
     written = write_outputs(args.out, result, refined)
+    written += _geo_files(args, sign_map, result, telemetry, request, notes)
+    for line in notes:
+        print(line)
     if args.quiet:  # the result and errors only
         print(status_line(result))
         print(f"wrote {len(written)} files into {args.out}")
@@ -103,3 +132,17 @@ def run(args: argparse.Namespace) -> int:
     print(status_line(result))
     print(f"wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def _geo_files(args, sign_map, result, telemetry, request, notes: list[str]) -> list:
+    """The WGS84 files (map with an origin); the note why not when there is telemetry."""
+    gnss = telemetry.gnss if telemetry is not None else None
+    offset, outlier = 0.0, None
+    if gnss is not None:
+        offset, outlier = fused_clock_and_outliers(result.fusion, gnss, request.clock_offset_s)
+    if result.fusion is not None:
+        notes.append(fusion_summary(result.fusion))
+    geo = run_geo(sign_map, result.methods, gnss, offset, outlier, required=args.geo)
+    if geo.note and telemetry is not None:
+        notes.append(f"note: {geo.note}")
+    return write_run_geo(args.out, geo)

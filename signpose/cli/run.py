@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import TextIO
@@ -16,10 +17,12 @@ from signpose.cli import (
     codes_arg,
     observe_settings,
 )
+from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.smoother import SmootherSettings
 from signpose.io.camera_file import load_camera
 from signpose.io.clock import parse_start_time
+from signpose.io.telemetry import TelemetryRequest
 from signpose.maps.loader import load_map
 from signpose.pipeline import STAGES, RunResult, RunSettings
 
@@ -64,9 +67,56 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="skip the smoother's marginal sigmas (faster on long flights; no sigma bands)",
     )
+    add_telemetry(p, log_input=True)
     add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
+
+
+def add_telemetry(p: argparse.ArgumentParser, log_input: bool) -> None:
+    """--telemetry, --telemetry-topic, --telemetry-offset and --geo (issue 17)."""
+    p.add_argument(
+        "--telemetry",
+        type=Path,
+        metavar="FILE",
+        help="the drone's own GNSS/IMU log, fused with the signs (method 'fused'): a DJI .SRT "
+        "sidecar, a PX4 .ulg, a telemetry CSV (docs/telemetry.md), or an MCAP / rosbag2 log "
+        "with sensor_msgs/NavSatFix and Imu topics",
+    )
+    same_log = " (without --telemetry: from the input log itself)" if log_input else ""
+    p.add_argument(
+        "--telemetry-topic",
+        metavar="T",
+        help=f"NavSatFix / Imu topic(s) of an MCAP / rosbag2 telemetry log, comma-separated"
+        f"{same_log}; needed when the log has several",
+    )
+    p.add_argument(
+        "--telemetry-offset",
+        type=float,
+        metavar="S",
+        help="telemetry time minus video time [s] (default: estimated from the flight)",
+    )
+    p.add_argument(
+        "--geo",
+        action="store_true",
+        help="require the WGS84 outputs (trajectory_wgs84.csv, trajectory.geojson, "
+        "trajectory.kml, LocationFix in result.mcap): exit 2 when the map has no origin "
+        "(default: written when the map has one, skipped with a note otherwise)",
+    )
+
+
+def telemetry_request(args: argparse.Namespace, log_input: bool) -> TelemetryRequest | None:
+    """The telemetry the options ask for, or None; InputError for options that do not fit."""
+    offset = args.telemetry_offset
+    if offset is not None and not math.isfinite(offset):
+        raise InputError(f"--telemetry-offset {offset}: give a finite number of seconds")
+    if args.telemetry is None and not (log_input and args.telemetry_topic):
+        if offset is not None:
+            raise InputError("--telemetry-offset needs --telemetry FILE")
+        if args.telemetry_topic:
+            raise InputError("--telemetry-topic needs --telemetry FILE")
+        return None
+    return TelemetryRequest(args.telemetry, args.telemetry_topic, offset)
 
 
 def print_result(result: RunResult, out: TextIO | None = None, quiet: bool = False) -> None:
@@ -119,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
         ros2_bag=args.ros2_bag,
         start_ns=parse_start_time(args.start_time) if args.start_time is not None else None,
         gt_offset_s=args.gt_offset,
+        telemetry=telemetry_request(args, log_input=True),
+        geo=args.geo,
     )
     # Through the module, so that a test's stand-in for pipeline.run is seen.
     result = pipeline.run(

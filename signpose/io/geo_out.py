@@ -38,7 +38,8 @@ import numpy as np
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.estimate import MethodEstimate
-from signpose.estimator.telemetry import GnssFixes
+from signpose.estimator.fusion import FusionResult
+from signpose.estimator.telemetry import GnssFixes, Telemetry
 from signpose.maps.geodesy import GeoOrigin, enu_from_geodetic, geodetic_from_enu
 from signpose.maps.loader import SignMap
 
@@ -122,6 +123,32 @@ def gnss_track(
         gnss.height_m,
         sigma,
         status,
+    )
+
+
+def fused_clock_and_outliers(
+    fusion: FusionResult | None, gnss: GnssFixes, clock_offset_s: float | None = None
+) -> tuple[float, np.ndarray | None]:
+    """(clock offset [s], (G,) rejected-fix flags or None) of a run's fusion.
+
+    Without a fusion result: the given offset (0 when None) and no flags.
+    """
+    if fusion is None:
+        return (clock_offset_s or 0.0), None
+    outlier = np.zeros(len(gnss), bool)
+    used = np.asarray(fusion.gnss_used, int)
+    outlier[used[np.asarray(fusion.gnss_outlier, bool)]] = True
+    return float(fusion.clock.offset_s), outlier
+
+
+def fusion_summary(fusion: FusionResult) -> str:
+    """One line for the user: the clock offset found and the GNSS fixes rejected."""
+    c = fusion.clock
+    sigma = f" +- {1000 * c.sigma_s:.1f} ms" if math.isfinite(c.sigma_s) else ""
+    used, rejected = len(fusion.gnss_used), int(np.sum(fusion.gnss_outlier))
+    return (
+        f"fused: clock offset {c.offset_s:+.3f} s{sigma} ({c.source}); "
+        f"{rejected} of {used} GNSS fixes rejected as outliers"
     )
 
 
@@ -274,6 +301,16 @@ def check_geo_request(sign_map: SignMap, required: bool) -> None:
     """Refuse at once a run that asks for geodetic outputs (``--geo``) with a map without origin."""
     if required and sign_map.origin is None:
         raise InputError(_no_origin(sign_map))
+
+
+def check_anchor(sign_map: SignMap, telemetry: Telemetry) -> None:
+    """Refuse GNSS fixes with a map that has no origin to put them in its frame."""
+    if telemetry.gnss is not None and sign_map.origin is None:
+        raise InputError(
+            f"{sign_map.source or 'the map'}: the map has no 'origin' (its WGS84 anchor) to put "
+            f"the GNSS fixes of {telemetry.source} in its frame; add origin: {{lat_deg: .., "
+            "lon_deg: .., height_m: ..}} (maps/SCHEMA.md)"
+        )
 
 
 @dataclass(frozen=True)
