@@ -37,7 +37,7 @@ import enum
 import math
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import NamedTuple, Protocol
@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 from signpose.frontend.decoder import DecodeResult, decode_region
 from signpose.frontend.observations import DEFAULT_SIGMA_PX, FrameObservations, SignObservation
+from signpose.frontend.verify import VerifyOutcome, verify_sign
 
 from signpose.core.errors import InputError
 
@@ -65,18 +66,56 @@ class DetectorMode(enum.StrEnum):
 MODES: tuple[str, ...] = (DetectorMode.FAST.value, DetectorMode.PAPER.value)
 
 
-class PredictedSign(NamedTuple):
+class _Predicted(NamedTuple):
+    code: str
+    center_px: tuple[float, float]
+    diameter_px: float
+
+
+class PredictedSign(_Predicted):
     """Where a sign of the map should appear in the next image.
+
+    A (code, center_px, diameter_px) tuple (it unpacks as three), with the
+    predicted homography as an attribute beside it.
 
     Attributes:
         code: the sign's code.
         center_px: (u, v) predicted centre, raw image pixels.
         diameter_px: predicted disc diameter [px].
+        image_H_sign: (3, 3) predicted homography from the sign plane (disc
+            diameter units, x right, y up, origin at the centre) to raw
+            pixels, or None. With it the sign is verified there
+            (``frontend.verify``) before any search.
     """
 
-    code: str
-    center_px: tuple[float, float]
-    diameter_px: float
+    image_H_sign: np.ndarray | None
+
+    def __new__(
+        cls,
+        code: str,
+        center_px: tuple[float, float],
+        diameter_px: float,
+        image_H_sign: np.ndarray | None = None,
+    ) -> PredictedSign:
+        self = super().__new__(cls, code, center_px, diameter_px)
+        self.image_H_sign = image_H_sign
+        return self
+
+
+# Sign-plane points [disc diameters] whose predicted images give a
+# prediction's homography (``homography_from_points``): around the slot ring.
+HOMOGRAPHY_POINTS = np.array([[-0.35, -0.35], [0.35, -0.35], [0.35, 0.35], [-0.35, 0.35]])
+
+
+def homography_from_points(image_px: np.ndarray) -> np.ndarray | None:
+    """image_H_sign from the (4, 2) raw pixels of ``HOMOGRAPHY_POINTS``, or None."""
+    px = np.asarray(image_px, np.float32).reshape(4, 2)
+    if not np.isfinite(px).all():
+        return None
+    h = cv2.getPerspectiveTransform(HOMOGRAPHY_POINTS.astype(np.float32), px)
+    if not np.isfinite(h).all() or abs(h[2, 2]) < 1e-12:
+        return None
+    return h / h[2, 2]
 
 
 def bundled_cascade_path() -> Path:
@@ -131,6 +170,10 @@ class DetectorSettings:
             24 px via magnified candidate areas); 0 disables.
         track_margin: tracking ROI half-side, in predicted diameters, beyond
             the predicted radius.
+        track_anchor_margin: the same for the one sign searched to learn a
+            frame's prediction offset when the first verification fails
+            (the camera's rotation since the predicted pose moves every
+            sign alike, often by more than ``track_margin``).
         track_scale: (lo, hi) window size range relative to the predicted
             diameter.
         track_scale_factor: window growth between sizes when tracking.
@@ -158,6 +201,7 @@ class DetectorSettings:
     fast_scale: tuple[float, float] = (0.6, 1.9)
     fast_small_min_px: int = 16
     track_margin: float = 0.4
+    track_anchor_margin: float = 3.0
     track_scale: tuple[float, float] = (0.8, 1.4)
     track_scale_factor: float = 1.12
     track_min_found_frac: float = 0.5
@@ -181,6 +225,9 @@ class DetectionResult:
         mode: how the frame was searched.
         fell_back: tracking lost a predicted sign and searched the full frame.
         regions: (n_regions, 4) merged regions (x, y, w, h) before decoding.
+        verifications: tracking only: the outcome of each prediction that
+            carried a homography (``frontend.verify``), in prediction order;
+            the verified ones are in ``detections`` without a search.
     """
 
     detections: tuple[SignObservation, ...]
@@ -190,6 +237,7 @@ class DetectionResult:
     mode: DetectorMode = DetectorMode.FAST
     fell_back: bool = False
     regions: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    verifications: tuple[VerifyOutcome, ...] = ()
 
 
 class Detector(Protocol):
@@ -661,7 +709,10 @@ class SignDetector:
     ) -> DetectionResult:
         """Search only around predicted signs; fall back to a full frame when they are lost.
 
-        The full frame is searched (fast mode) when fewer than
+        A prediction with a homography is first verified there
+        (``frontend.verify.verify_sign``); only the others, and those whose
+        verification disagrees, are searched with the cascade and decoded
+        in full. The full frame is searched (fast mode) when fewer than
         ``track_min_found_frac`` of the predicted signs inside the image are
         found, or, with ``refresh``, when any of them is missing (the caller
         asks for that every few frames, so an occluded sign does not cost a
@@ -679,23 +730,91 @@ class SignDetector:
         """
         t0 = time.perf_counter()
         gray = _as_gray(image)
-        raw = self._tracked_raw(gray, predictions)
-        timing = {"cascade": (time.perf_counter() - t0) * 1e3}
+        codes = tuple(codes) if codes is not None else None
+        predictions = [
+            p if isinstance(p, PredictedSign) else PredictedSign(*p) for p in predictions
+        ]
+        verified, outcomes, rest = self._verify_predicted(gray, predictions, codes)
+        t1 = time.perf_counter()
+        raw = self._tracked_raw(gray, rest)
+        timing = {"verify": (t1 - t0) * 1e3, "cascade": (time.perf_counter() - t1) * 1e3}
         res = self._finish(gray, raw, codes, "track", timing, t0)
+        timing["decode"] += timing["verify"]
+        res = replace(
+            res,
+            detections=one_per_sign(verified + list(res.detections)),
+            verifications=outcomes,
+        )
         if self._tracking_held(res, predictions, gray.shape, refresh):
             return res
         full = self.detect(gray, codes, "fast")
         timing = {k: res.timing.get(k, 0.0) + v for k, v in full.timing.items()}
         timing["total"] = (time.perf_counter() - t0) * 1e3
         return DetectionResult(
-            full.detections,
+            one_per_sign(verified + list(full.detections)),
             full.n_regions,
             full.n_undecoded,
             timing,
             DetectorMode.TRACK,
             True,
             full.regions,
+            outcomes,
         )
+
+    def _verify_predicted(
+        self, gray: np.ndarray, predictions: Sequence[PredictedSign], codes: tuple[str, ...] | None
+    ) -> tuple[list[SignObservation], tuple[VerifyOutcome, ...], list[PredictedSign]]:
+        """(observations found, verification outcomes, predictions left to search).
+
+        The predictions of one frame come from one predicted pose, so they are
+        off by nearly the same image shift (mostly the camera's rotation since
+        the pose): largest predicted sign first, each verification uses the
+        offset of the nearest sign found so far. When the first fails before
+        any is found, that one sign is searched and decoded in full to learn
+        the shift (an anchor). The predictions left to search carry the shift.
+        """
+        order = sorted(
+            range(len(predictions)),
+            key=lambda i: (-predictions[i].diameter_px, predictions[i].code, i),
+        )
+        found: list[SignObservation] = []
+        offsets: list[tuple[float, float]] = []
+        outcomes: dict[int, VerifyOutcome] = {}
+        rest: list[int] = []
+        anchored = False
+        for i in order:
+            p = predictions[i]
+            if p.image_H_sign is None or not self.settings.decode:
+                rest.append(i)
+                continue
+            shift = _offset_near(p, found, offsets)
+            v = verify_sign(gray, _shifted_homography(p.image_H_sign, shift), p.code, codes)
+            outcomes[i] = v.outcome
+            obs = _verified_observation(v.result) if v.ok else None
+            if obs is None and not offsets and not anchored:
+                anchored = True
+                obs = self._anchor(gray, p, codes)
+            if obs is None:
+                rest.append(i)
+                continue
+            found.append(obs)
+            offsets.append((obs.center_px[0] - p.center_px[0], obs.center_px[1] - p.center_px[1]))
+        shift = tuple(np.median(offsets, axis=0)) if offsets else (0.0, 0.0)
+        left = [_shifted_prediction(predictions[i], shift) for i in sorted(rest)]
+        return found, tuple(outcomes[i] for i in sorted(outcomes)), left
+
+    def _anchor(
+        self, gray: np.ndarray, p: PredictedSign, codes: tuple[str, ...] | None
+    ) -> SignObservation | None:
+        """Sign ``p`` searched around its predicted place and decoded in full, or None."""
+        regions, counts = self.merge(
+            self._tracked_raw(gray, [p], self.settings.track_anchor_margin)
+        )
+        dets, _ = self._decode(gray, regions, counts, codes)
+        mine = [d for d in dets if d.code == p.code]
+        if not mine:
+            return None
+        return min(mine, key=lambda d: math.dist(d.center_px, p.center_px))
 
     def _tracking_held(
         self,
@@ -707,20 +826,28 @@ class SignDetector:
         """Whether the tracked search found enough of the predicted signs."""
         h, w = shape[:2]
         # Signs predicted (partly) outside the image cannot be required.
-        wanted = {code for code, (u, v), _d in predictions if 0 <= u < w and 0 <= v < h}
+        wanted = {p[0] for p in predictions if 0 <= p[1][0] < w and 0 <= p[1][1] < h}
         found = {d.code for d in res.detections} & wanted
         enough = len(found) >= max(1.0, self.settings.track_min_found_frac * len(wanted))
         return bool(wanted) and (found == wanted or (enough and not refresh))
 
-    def _tracked_raw(self, gray: np.ndarray, predictions: Sequence[PredictedSign]) -> np.ndarray:
-        """(N, 4) raw windows around the predicted signs, at their predicted sizes."""
+    def _tracked_raw(
+        self, gray: np.ndarray, predictions: Sequence[PredictedSign], margin: float | None = None
+    ) -> np.ndarray:
+        """(N, 4) raw windows around the predicted signs, at their predicted sizes.
+
+        ``margin``: the search region's half-side beyond the predicted radius,
+        in predicted diameters (default ``track_margin``).
+        """
         h, w = gray.shape
         s = self.settings
+        margin = s.track_margin if margin is None else margin
         parts = []
-        for _code, (u, v), diam in predictions:
+        for p in predictions:
+            (u, v), diam = p[1], p[2]
             if not (math.isfinite(u) and math.isfinite(v) and diam > 0):
                 continue
-            half = diam * (0.5 + s.track_margin) + 4
+            half = diam * (0.5 + margin) + 4
             x0, y0 = int(max(u - half, 0)), int(max(v - half, 0))
             x1, y1 = int(min(u + half + 1, w)), int(min(v + half + 1, h))
             if x1 - x0 < 8 or y1 - y0 < 8:
@@ -739,7 +866,9 @@ class SignDetector:
 
 
 def _window_score(n_windows: float) -> float:
-    """Confidence in [0, 1) from the number of agreeing cascade windows."""
+    """Confidence in [0, 1] from the number of agreeing cascade windows (inf: 1)."""
+    if math.isinf(n_windows):
+        return 1.0
     return float(n_windows / (n_windows + 2.0))
 
 
@@ -761,6 +890,46 @@ def _observation(
             if k in res.keypoints_px
         },
     )
+
+
+def _offset_near(
+    p: PredictedSign, found: list[SignObservation], offsets: list[tuple[float, float]]
+) -> tuple[float, float]:
+    """The prediction offset of the found sign nearest to ``p`` ((0, 0) when none).
+
+    A roll of the camera moves signs differently across the image; the
+    nearest one's offset is the best guess of this one's.
+    """
+    if not found:
+        return (0.0, 0.0)
+    k = min(range(len(found)), key=lambda j: math.dist(found[j].center_px, p.center_px))
+    return offsets[k]
+
+
+def _shifted_homography(h: np.ndarray, shift: tuple[float, float]) -> np.ndarray:
+    """(3, 3) ``h`` followed by an image shift (du, dv) [px]."""
+    t = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
+    return t @ np.asarray(h, float)
+
+
+def _shifted_prediction(p: PredictedSign, shift: tuple[float, float]) -> PredictedSign:
+    """``p`` moved by an image shift (du, dv) [px]."""
+    if shift == (0.0, 0.0):
+        return p
+    h = None if p.image_H_sign is None else _shifted_homography(p.image_H_sign, shift)
+    centre = (p.center_px[0] + shift[0], p.center_px[1] + shift[1])
+    return PredictedSign(p.code, centre, p.diameter_px, h)
+
+
+def _verified_observation(res: DecodeResult) -> SignObservation:
+    """A verified reading as an observation; its box is the disc's (the ellipse's)."""
+    (cx, cy), (major, minor), ang = res.ellipse
+    c, s = math.cos(math.radians(ang)), math.sin(math.radians(ang))
+    hw = 0.5 * math.hypot(major * c, minor * s)
+    hh = 0.5 * math.hypot(major * s, minor * c)
+    box = (float(cx - hw), float(cy - hh), float(2 * hw), float(2 * hh))
+    # No cascade windows vouch for it: the score is the decoder quality's share.
+    return _observation(res, box, math.inf)
 
 
 def one_per_sign(found: list[SignObservation]) -> tuple[SignObservation, ...]:

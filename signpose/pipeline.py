@@ -65,10 +65,12 @@ from signpose.estimator.refine import refine_flight
 from signpose.estimator.telemetry import Telemetry
 from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.detector import (
+    HOMOGRAPHY_POINTS,
     DetectionResult,
     Detector,
     PredictedSign,
     SignDetector,
+    homography_from_points,
     to_frame_observations,
 )
 from signpose.frontend.observations import FrameObservations, SignObservation
@@ -105,7 +107,7 @@ from signpose.io.sources import (
     read_range,
 )
 from signpose.io.telemetry import TelemetryRequest, check_overlap, describe, read_requested
-from signpose.maps.loader import SignMap, bundled_map_path, load_map
+from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map
 from signpose.plots import PlotData, plot_gnss_track, pose_errors, write_plots
 from signpose.report_html import write_run_report
 from signpose.sim.flight import SimSettings, simulate
@@ -361,8 +363,24 @@ def predict_signs(
         d = camera.fx * s.diameter_m / z
         m = margin * d
         if -m <= u <= camera.width - 1 + m and -m <= v <= camera.height - 1 + m:
-            out.append(PredictedSign(s.code, (float(u), float(v)), float(d)))
+            h = _predicted_homography(s, camera, world_T_cam)
+            out.append(PredictedSign(s.code, (float(u), float(v)), float(d), h))
     return out
+
+
+def _predicted_homography(
+    sign: MapSign, camera: CameraModel, world_T_cam: np.ndarray
+) -> np.ndarray | None:
+    """The oriented sign's predicted image_H_sign (detector.HOMOGRAPHY_POINTS), else None."""
+    if not sign.oriented:
+        return None
+    plane = sign.world_R_sign()[:, :2] * sign.diameter_m
+    px, depth = pixel_from_world_point(
+        camera, world_T_cam, sign.center_m + HOMOGRAPHY_POINTS @ plane.T
+    )
+    if not (depth > MIN_PREDICTED_DEPTH_M).all():
+        return None
+    return homography_from_points(px)
 
 
 def _extrapolate(prev: np.ndarray, prev2: np.ndarray | None, steps: int = 1) -> np.ndarray:

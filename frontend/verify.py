@@ -1,0 +1,324 @@
+"""Tracked verification: read a sign whose code and homography are predicted.
+
+In tracking the pipeline predicts, for each sign of the map in view, its code
+and ``image_H_sign`` (the pose predicted from the previous frames, through
+the map). Decoding such a sign from scratch (thresholds, contours, location
+and directional hypotheses) repeats work whose answer is already known.
+``verify_sign`` instead:
+
+1. aligns the prediction: the location square's gray-level centroid, in a
+   window around its predicted place, moves the homography (translation
+   only, ``VerifySettings.align_passes`` times);
+2. reads the five slot positions there (``decoder._read_slots``): the bits
+   must agree with the predicted code;
+3. measures the gray-level centroid of every white part of the code near its
+   predicted place (``decoder._subpixel_centroids``) and refits the
+   homography once (``decoder._fit_parts``);
+4. checks at the refit homography what the full decoder checks before it
+   accepts a reading: the slots read again the same code, the occlusion
+   evidence erases nothing and covers no part, no white is left unexplained,
+   the code is the map's (``decoder._accept_code``); the refit's residual
+   and the centre's move stay small.
+
+Anything else (a slot reads differently, a keypoint not found, a large
+residual, an occluder, fewer than three white parts, a sign cut by the image's
+edge) is not an error but an ``outcome``: the caller then decodes the sign in
+full. A verification therefore accepts only readings that pass every
+gray-level test of the decoder at a geometry fitted to the image; occluded
+signs (erased slots, dropped keypoints) are always left to the full decoder.
+The result is a ``DecodeResult`` filled as the decoder fills it (keypoints,
+ellipse, ``sigma_inputs`` and ``keypoint_sigma_px`` from the same
+``keypoint_sigmas``), so the sigma calibration holds for verified signs too.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from signpose.frontend.decoder import (
+    _CODE_PARTS,
+    _LOCATION_SIDE,
+    _PART_CENTRES,
+    _PART_NAMES,
+    _PART_QUADS,
+    _RIM,
+    DecodeReason,
+    DecodeResult,
+    DecoderSettings,
+    SigmaInputs,
+    _accept_code,
+    _as_gray,
+    _consistent,
+    _fill_deficit,
+    _fit_parts,
+    _inside,
+    _LazyFlag,
+    _mean_sigma,
+    _project,
+    _read_slots,
+    _Region,
+    _safe_disc_ellipse,
+    _subpixel_centroids,
+    _translated,
+    keypoint_sigmas,
+)
+from signpose.frontend.homography import polygon_centroids
+
+
+class VerifyOutcome(enum.StrEnum):
+    """How a verification ended; the value is the token written to files."""
+
+    VERIFIED = "verified"
+    NOT_VERIFIABLE = "not_verifiable"  # fewer than three white parts, or an implausible view
+    OUTSIDE = "outside"  # the predicted disc is not wholly inside the image
+    NOT_FOUND = "not_found"  # the location square or a white part is not where predicted
+    SLOT_DIFFERS = "slot_differs"  # a slot reads differently from the predicted code
+    RESIDUAL = "residual"  # the refit's residual or the centre's move is too large
+    REFUSED = "refused"  # a decoder check refuses it (occluder, unexplained white, ...)
+
+
+@dataclass(frozen=True)
+class VerifySettings:
+    """Verification tuning.
+
+    Attributes:
+        align_grow: the location square's alignment window: the square grown
+            by this many diameters on each side (half the gap to the ring).
+        align_passes: alignment iterations (each recentres the window).
+        max_shift: largest total alignment shift [diameters].
+        max_residual_px: largest RMS residual of the refit [px], plus
+            ``max_residual_frac`` of the disc's major axis.
+        max_residual_frac: see ``max_residual_px``.
+        max_moved: largest move of the centre or directional keypoint by the
+            refit, as a fraction of the disc's major axis (the decoder's 0.1).
+        edge_margin_px: the disc's rim stays this far inside the image [px].
+        min_major_px: smallest disc verified [px] (smaller: full decode).
+        max_disturbance: largest shortfall from white inside any white part
+            (``decoder._Occlusion.disturbance``; the decoder calls a part
+            clean above 0.7 white): more leaves the sign to the full decoder.
+    """
+
+    align_grow: float = 0.05
+    align_passes: int = 1
+    max_shift: float = 0.15
+    max_residual_px: float = 0.35
+    max_residual_frac: float = 0.01
+    max_moved: float = 0.1
+    edge_margin_px: float = 1.0
+    min_major_px: float = 14.0
+    max_disturbance: float = 0.3
+
+
+@dataclass(frozen=True)
+class Verification:
+    """A verification's outcome and, when verified, the reading.
+
+    Attributes:
+        outcome: how it ended.
+        result: the reading (``code`` set) when verified; otherwise a
+            failed ``DecodeResult`` naming the decoder's reason where one
+            applies.
+    """
+
+    outcome: VerifyOutcome
+    result: DecodeResult
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome is VerifyOutcome.VERIFIED
+
+
+_HALF_SQUARE = _LOCATION_SIDE / 2
+_DECODER_SETTINGS = DecoderSettings()
+
+
+def _miss(outcome: VerifyOutcome, reason: DecodeReason = DecodeReason.INCONSISTENT) -> Verification:
+    return Verification(outcome, DecodeResult(code=None, reason=reason))
+
+
+def _align(
+    gray: np.ndarray, image_H_sign: np.ndarray, s: VerifySettings
+) -> tuple[np.ndarray | None, float]:
+    """The homography moved so the location square sits on its gray-level centroid.
+
+    Returns (homography or None when the square is not found, shift [px]).
+    """
+    h, w = gray.shape
+    half = _HALF_SQUARE + s.align_grow
+    corners = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
+    total = np.zeros(2)
+    for _ in range(s.align_passes):
+        quad = _project(image_H_sign, corners)
+        (u0, v0), (u1, v1) = np.floor(quad.min(axis=0)), np.ceil(quad.max(axis=0)) + 1
+        if not (u0 >= 0 and v0 >= 0 and u1 <= w and v1 <= h) or u1 - u0 < 3 or v1 - v0 < 3:
+            return None, 0.0
+        win = gray[int(v0) : int(v1), int(u0) : int(u1)]
+        mask = np.zeros(win.shape, np.uint8)
+        pts = np.round((quad - (u0, v0)) * 16).astype(np.int32)
+        cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=4)
+        lo, hi, _, _ = cv2.minMaxLoc(win, mask)
+        if hi - lo < 25.0:
+            return None, 0.0
+        # White fraction above the midpoint: the square's pixels, not the black ring's.
+        wt = (win.astype(np.float32) - np.float32(0.5 * (lo + hi))) * np.float32(2.0 / (hi - lo))
+        np.clip(wt, 0.0, 1.0, out=wt)
+        mo = cv2.moments(wt * mask)
+        if mo["m00"] <= 0:
+            return None, 0.0
+        cu = u0 + mo["m10"] / mo["m00"]
+        cv = v0 + mo["m01"] / mo["m00"]
+        shift = np.array([cu, cv]) - _project(image_H_sign, _PART_CENTRES[:1])[0]
+        image_H_sign = _translated(image_H_sign, shift)
+        total += shift
+    return image_H_sign, float(np.hypot(*total))
+
+
+def verify_sign(
+    image_gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    code: str,
+    codes: Iterable[str] | None = None,
+    settings: VerifySettings = VerifySettings(),
+    decoder_settings: DecoderSettings = _DECODER_SETTINGS,
+) -> Verification:
+    """Verify the predicted sign ``code`` at ``image_H_sign`` in a whole image.
+
+    Args:
+        image_gray: (H, W) uint8 image (BGR is converted).
+        image_H_sign: (3, 3) predicted homography from the sign plane (disc
+            diameter units, x right, y up, origin at the centre) to raw pixels.
+        code: the predicted code.
+        codes: the map's codes (None: all 16).
+        settings: verification tuning.
+        decoder_settings: the decoder's tuning (its reading thresholds).
+
+    Returns:
+        The outcome; when verified, the reading in the image's pixels.
+    """
+    g = _as_gray(image_gray)
+    allowed = None if codes is None else frozenset(codes)
+    parts = _CODE_PARTS[code][0]
+    if len(parts) < 3 or (allowed is not None and code not in allowed):
+        return _miss(VerifyOutcome.NOT_VERIFIABLE)
+    h, w = g.shape
+    ell = _safe_disc_ellipse(np.asarray(image_H_sign, float))
+    if ell is None:
+        return _miss(VerifyOutcome.NOT_VERIFIABLE)
+    (_, _), (major, minor), _ = ell
+    ds = decoder_settings
+    if major < max(settings.min_major_px, ds.min_sign_px) or minor < ds.min_axis_ratio * major:
+        return _miss(VerifyOutcome.NOT_VERIFIABLE)
+    if not _inside(_project(image_H_sign, _RIM / 0.46 * 0.5), w, h, settings.edge_margin_px):
+        return _miss(VerifyOutcome.OUTSIDE)
+    aligned, shift = _align(g, np.asarray(image_H_sign, float), settings)
+    if aligned is None or shift > settings.max_shift * major:
+        return _miss(VerifyOutcome.NOT_FOUND)
+    first = _read_slots(g, aligned, ds)
+    if first.code is None:
+        return _miss(VerifyOutcome.SLOT_DIFFERS, first.reason)
+    if not _consistent(first.code, code) or "x" in first.code:
+        return _miss(VerifyOutcome.SLOT_DIFFERS)
+    return _refit_and_check(g, aligned, code, parts, first, major, allowed, settings, ds)
+
+
+def _refit(
+    aligned: np.ndarray, parts: list[int], cents: np.ndarray, ds: DecoderSettings
+) -> tuple[np.ndarray | None, float]:
+    """One refit to the measured centroids: (image_H_sign, RMS residual [px] or NaN).
+
+    Four or more parts: the decoder's homography fit. Three (codes with one
+    white slot): too few for a homography, so the prediction keeps the
+    perspective and an affine map, exact on the three, moves the parts'
+    predicted image centroids onto the measured ones.
+    """
+    if len(parts) >= 4:
+        return _fit_parts(parts, cents, None, passes=1 if ds.perspective_correction else 0)
+    quads = _PART_QUADS[parts]
+    predicted = polygon_centroids(_project(aligned, quads.reshape(-1, 2)).reshape(quads.shape))
+    a = cv2.getAffineTransform(predicted.astype(np.float32), cents.astype(np.float32))
+    if not np.isfinite(a).all():
+        return None, float("nan")
+    return np.vstack([a, [0.0, 0.0, 1.0]]) @ aligned, float("nan")
+
+
+def _refit_and_check(
+    g: np.ndarray,
+    aligned: np.ndarray,
+    code: str,
+    parts: list[int],
+    first,
+    major: float,
+    allowed: frozenset[str] | None,
+    settings: VerifySettings,
+    ds: DecoderSettings,
+) -> Verification:
+    """Steps 3-4 of the module docstring, from the aligned prediction."""
+    cents, valid, white_area = _subpixel_centroids(g, aligned, parts, first.black, first.white, 1.5)
+    if not bool(valid.all()):
+        return _miss(VerifyOutcome.NOT_FOUND)
+    deficit = _fill_deficit(aligned, parts, white_area, valid)
+    h_ref, rms = _refit(aligned, parts, cents, ds)
+    if h_ref is None:
+        return _miss(VerifyOutcome.NOT_FOUND)
+    limit = settings.max_residual_px + settings.max_residual_frac * major
+    moved = float(
+        np.abs(_project(h_ref, _PART_CENTRES[:2]) - _project(aligned, _PART_CENTRES[:2])).max()
+    )
+    if (math.isfinite(rms) and rms > limit) or moved > settings.max_moved * major:
+        return _miss(VerifyOutcome.RESIDUAL)
+    reading = _read_slots(g, h_ref, ds)
+    if reading.code is None or reading.code != code:
+        return _miss(VerifyOutcome.SLOT_DIFFERS, reading.reason)
+    region = _Region(
+        gray=g,
+        holes=[],
+        centroids_px=np.zeros((0, 2)),
+        cut=_LazyFlag(lambda: False),
+        rim_contour=None,  # no contour: every dark band counts as evidence (stricter)
+        disc_area_px=None,
+        disc_centre_px=None,
+        allowed=allowed,
+        settings=ds,
+    )
+    accepted, occ, reason = _accept_code(region, h_ref, reading, major)
+    if accepted != code or occ is None or occ.covered_parts or "x" in occ.pattern:
+        return _miss(VerifyOutcome.REFUSED, reason if accepted is None else DecodeReason.OCCLUDED)
+    if occ.disturbance > settings.max_disturbance:
+        # Something dark across a white part (a conductor, dirt): the decoder's
+        # contours may see it split, and it may refuse the sign; so does this.
+        return _miss(VerifyOutcome.REFUSED, DecodeReason.OCCLUDED)
+    ellipse = _safe_disc_ellipse(h_ref)
+    if ellipse is None:
+        return _miss(VerifyOutcome.NOT_VERIFIABLE)
+    names = [_PART_NAMES[p] for p in parts]
+    uv = _project(h_ref, _PART_CENTRES[parts])
+    inputs = SigmaInputs(
+        minor_px=float(ellipse[1][1]),
+        spread=first.spread,
+        residual_px=rms,
+        crossed=False,
+        disturbance=max(occ.disturbance, deficit),
+    )
+    sigmas = keypoint_sigmas(inputs, names)
+    quality = min(max(first.margin / 0.5, 0.0), 1.0) * math.exp(
+        -(rms if math.isfinite(rms) else 0.0) / 0.5
+    )
+    result = DecodeResult(
+        code=code,
+        reason=DecodeReason.OK,
+        keypoints_px={n: (float(p[0]), float(p[1])) for n, p in zip(names, uv, strict=True)},
+        ellipse=ellipse,
+        quality=float(quality),
+        sigma_px=_mean_sigma(sigmas),
+        image_H_sign=h_ref,
+        residual_px=rms,
+        erased_slots=(),
+        keypoint_sigma_px=sigmas,
+        sigma_inputs=inputs,
+    )
+    return Verification(VerifyOutcome.VERIFIED, result)
