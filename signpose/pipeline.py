@@ -1557,6 +1557,7 @@ def _pipeline_section(
         "input_kind": source.kind,
         "frames": n,
         "problems": list(obs.problems),
+        **({"notes": list(result.notes)} if result.notes else {}),  # telemetry, clock offset
         "missing_frames": [c.to_json() for c in obs.lost],
         "tracking": {"tracked_frames": obs.tracked_frames, "full_frames": obs.full_frames},
         "refused": {

@@ -6,6 +6,8 @@ map's origin, with 0.3 m of noise.
 """
 
 import csv
+import io
+import json
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +19,7 @@ from test_telemetry_ulog import IMU_FIELDS, _imu_rows, write_ulog
 
 from signpose import pipeline
 from signpose.cli import main
+from signpose.cli.run import print_result
 from signpose.core.errors import InputError
 from signpose.io import mcap as mcap_io
 from signpose.io.telemetry import TelemetryRequest
@@ -85,6 +88,11 @@ def test_a_fused_run_writes_the_wgs84_files_and_location_fixes(flight, site, tmp
     fixes = mcap_io.read_json_messages(tmp_path / "out" / "result.mcap", "/gnss/fix")
     fused = mcap_io.read_json_messages(tmp_path / "out" / "result.mcap", "/signpose/fused/fix")
     assert len(fixes) == 15 and len(fused) == 30
+    report = json.loads((tmp_path / "out" / "report.json").read_text())["pipeline"]
+    assert report["notes"] == list(result.notes)
+    printed = io.StringIO()
+    print_result(result, printed)
+    assert result.notes[1] in printed.getvalue()
 
 
 def _cli(video, *args) -> list[str]:

@@ -127,6 +127,8 @@ def print_result(result: RunResult, out: TextIO | None = None, quiet: bool = Fal
     out = out if out is not None else sys.stdout
     if result.comparison_table:
         print(result.comparison_table, file=out)
+    for line in result.notes:  # telemetry read, clock offset found, geodetic outputs skipped
+        print(line, file=out)
     cov = ", ".join(f"{k} {100 * v:.1f}%" for k, v in result.coverage.items())
     print(f"{result.n_frames} frames; poses for {cov}", file=out)
     if result.status:
