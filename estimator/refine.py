@@ -14,6 +14,7 @@ World frame: the map's; centres [m].
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -37,6 +38,8 @@ MOVED_SIGMAS = 3.0
 # this many Gauss-Newton steps (the problem is nearly linear in the shift).
 SHIFT_MIN_MEASUREMENTS = 6
 SHIFT_ITERATIONS = 6
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -193,7 +196,8 @@ def refine_flight(
 
     Starts from the flight's smoothed trajectory (no second robust solve) and
     solves it with the signs as in ``refine_map``. None without a smoothed
-    trajectory.
+    trajectory, or when the flight cannot move the signs (too few views: the
+    linear system is indeterminate; a warning says so).
 
     Args:
         frames: the observations ``result`` was estimated from.
@@ -206,7 +210,19 @@ def refine_flight(
     s = result.settings
     if result.motion is not None:  # the motion prior chosen from the flight
         s = replace(s, smoother=result.motion.settings)
-    return _solve_flights([frames], [smoothed.world_T_cam], sign_map, camera, s)
+    try:
+        return _solve_flights([frames], [smoothed.world_T_cam], sign_map, camera, s)
+    except RuntimeError as e:
+        # gtsam's IndeterminantLinearSystemException: too few views to move the signs
+        # (a short flight, one sign per frame). The trajectory stands; the map stays.
+        if "ndetermina" not in str(e):
+            raise
+        log.warning(
+            "map_refined.yaml not written: the flight's %d frames do not constrain the "
+            "sign positions (the linear system is indeterminate)",
+            len(frames),
+        )
+        return None
 
 
 def _solve_flights(

@@ -45,6 +45,6 @@ def pose_tracks(trajectories: dict[str, Trajectory]) -> dict[str, PoseTrack]:
     tracks = {}
     for name, traj in trajectories.items():
         Ts = traj.world_T_cam()
-        ok = np.all(np.isfinite(Ts.reshape(len(Ts), -1)), axis=1)
+        ok = np.all(np.isfinite(Ts.reshape(len(Ts), 16)), axis=1)
         tracks[name] = PoseTrack(np.round(traj.stamps_s[ok] * 1e9).astype(np.int64), Ts[ok])
     return tracks
