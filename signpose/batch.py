@@ -31,7 +31,7 @@ from typing import Protocol
 
 from tqdm import tqdm
 
-from signpose.core.errors import InputError, SignposeError
+from signpose.core.errors import InputError, SignposeError, one_line
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.status import PoseStatus
 from signpose.fingerprint import (
@@ -263,7 +263,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
         )
     except SignposeError as exc:
         return FlightOutcome(
-            job.flight, FlightStatus.FAILED, time_s=time.perf_counter() - t0, message=str(exc)
+            job.flight, FlightStatus.FAILED, time_s=time.perf_counter() - t0, message=one_line(exc)
         )
     except Exception as exc:  # noqa: BLE001 - one flight's bug must not stop the batch
         log.debug("flight %s failed:\n%s", job.flight, traceback.format_exc())
@@ -271,7 +271,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             job.flight,
             FlightStatus.FAILED,
             time_s=time.perf_counter() - t0,
-            message=f"internal error: {type(exc).__name__}: {exc}",
+            message=f"internal error: {type(exc).__name__}: {one_line(exc)}",
             internal=True,
         )
     with atomic_write(Path(job.out_dir) / DONE_MARKER) as f:
@@ -642,6 +642,6 @@ def _outcome_of(fut: _Finished, job: FlightJob) -> FlightOutcome:
         return FlightOutcome(
             job.flight,
             FlightStatus.FAILED,
-            message=f"worker failed: {type(exc).__name__}: {exc}",
+            message=f"worker failed: {type(exc).__name__}: {one_line(exc)}",
             internal=True,
         )

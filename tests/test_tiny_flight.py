@@ -3,6 +3,7 @@
 import json
 
 from signpose.cli import main
+from signpose.core.errors import one_line
 
 
 def test_tiny_flight_runs_without_a_refined_map(tmp_path, caplog):
@@ -21,3 +22,12 @@ def test_tiny_flight_runs_without_a_refined_map(tmp_path, caplog):
     # Poses from so little are weak or bridged, never "ok".
     assert smoothed["status"].get("ok", 0.0) == 0.0
     assert (out / "result.mcap").stat().st_size > 0
+
+
+def test_one_line_flattens_library_paragraphs():
+    msg = "\nIndeterminate linear system detected while working near variable\n  x6.\n\nThrown"
+    assert (
+        one_line(msg)
+        == "Indeterminate linear system detected while working near variable x6. Thrown"
+    )
+    assert len(one_line("x" * 1000, limit=50)) == 50

@@ -18,7 +18,7 @@ import threading
 from pathlib import Path
 
 from signpose import __version__
-from signpose.core.errors import SignposeError
+from signpose.core.errors import SignposeError, one_line
 from signpose.frontend.sign import ALL_CODES
 from signpose.pipeline import ObserveSettings
 
@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         print(
-            f"signpose {args.command}: internal error: {type(exc).__name__}: {exc} "
+            f"signpose {args.command}: internal error: {type(exc).__name__}: {one_line(exc)} "
             "(rerun with --debug for the traceback)",
             file=sys.stderr,
         )

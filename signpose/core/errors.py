@@ -15,3 +15,13 @@ class InputError(SignposeError):
 
 class OutputError(SignposeError):
     """An output location cannot be written."""
+
+
+def one_line(text: object, limit: int = 400) -> str:
+    """``text`` on one line (whitespace runs collapsed), cut to ``limit`` characters.
+
+    Libraries' messages (gtsam's span a paragraph) must not break a one-line
+    error or a CSV row.
+    """
+    flat = " ".join(str(text).split())
+    return flat if len(flat) <= limit else flat[: limit - 3] + "..."
