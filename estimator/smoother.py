@@ -160,6 +160,18 @@ class SmootherSettings:
             landmarks, bias units for the bias); 1e-6 made iSAM2's Cholesky
             report an indeterminate system, 1e-4 let the final estimate drift
             0.5 mm from the batch one.
+        isam_window_frames: every this many frames the frames before the
+            newest leave iSAM2 (memory and time per frame are then bounded by
+            the window, not the flight): their factors, linearised at the
+            running estimate, are eliminated into (a) linear factors on the
+            newest frame, the landmarks and the bias, which start a fresh
+            iSAM2 (the causal estimate goes on from all the information) and
+            (b) their conditionals on those variables, written out (kept
+            aside, ~10 KB per frame): after the last frame one
+            back-substitution through them gives every frame's final
+            estimate, and one selected inversion its covariance. Landmark
+            copies (``isam_segment_frames``) are not needed then. 0: one
+            iSAM2 over the whole flight (1.2 MB per frame).
         compute_sigmas: compute per-pose marginal position sigmas.
         max_sigma_frames: skip the sigmas (NaN, with a warning) for longer
             flights: the marginals cost ~3-5 ms per pose here (every pose's
@@ -193,6 +205,7 @@ class SmootherSettings:
     isam_init_gate_m: float = 1.0
     isam_segment_frames: int = 50
     isam_copy_sigma: float = 1e-5
+    isam_window_frames: int = 0
     compute_sigmas: bool = True
     max_sigma_frames: int = 3000
 
@@ -813,30 +826,30 @@ def _chain_covariances(
     linear: gtsam.GaussianFactorGraph, ordering: gtsam.Ordering, n_frames: int
 ) -> np.ndarray | None:
     """(N, 6, 6) pose covariances by one backward pass, or None when the net does not suit it."""
-    net = linear.eliminateSequential(ordering)
+    conds = _net_conditionals(linear.eliminateSequential(ordering))
+    return None if conds is None else _pose_covariances(conds, n_frames)
+
+
+def _net_conditionals(net: gtsam.GaussianBayesNet) -> list[Conditional] | None:
+    """A sequential Bayes net's conditionals, or None when one is not unit-noise."""
     conds = []
     for k in range(net.size()):
         c = net.at(k)
-        if c.get_model() is not None:  # a constrained or weighted conditional: not unit noise
+        if c.get_model() is not None:  # a constrained or weighted conditional
             return None
         keys = c.keys()
-        conds.append(Conditional(keys[0], np.asarray(c.R()), tuple(keys[1:]), np.asarray(c.S())))
+        conds.append(Conditional(keys[0], np.array(c.R()), tuple(keys[1:]), np.array(c.S())))
+    return conds
+
+
+def _pose_covariances(conds: list[Conditional], n_frames: int) -> np.ndarray | None:
+    """(N, 6, 6) from conditionals frames first (the variables after the last frame: the tail)."""
     frame_keys = {X(i) for i in range(n_frames)} | {V(i) for i in range(n_frames)}
     last = max((k for k, c in enumerate(conds) if c.key in frame_keys), default=-1)
     if sum(c.R.shape[0] for c in conds[last + 1 :]) > MAX_TAIL_DIM:
         return None
     got = selected_covariances(conds, last + 1, [X(i) for i in range(n_frames)])
     return np.array([got[X(i)] for i in range(n_frames)]).reshape(n_frames, 6, 6)
-
-
-def batch_sigmas(
-    graph: gtsam.NonlinearFactorGraph,
-    values: gtsam.Values,
-    poses: np.ndarray,
-    ordering: gtsam.Ordering | None = None,
-) -> np.ndarray:
-    """(N, 3) marginal position sigmas [m], world axes (see ``batch_covariances``)."""
-    return _sigmas_from(batch_covariances(graph, values, len(poses), ordering), poses)
 
 
 def _isam2_params(s: SmootherSettings) -> gtsam.ISAM2Params:
@@ -855,6 +868,77 @@ def _isam2_params(s: SmootherSettings) -> gtsam.ISAM2Params:
     return p
 
 
+# Gauss-Newton steps with full relinearisation before frames leave iSAM2.
+WRITE_OUT_STEPS = 2
+
+
+def _tangent(values: gtsam.Values, theta: gtsam.Values, key: int) -> np.ndarray:
+    """``values[key]`` minus ``theta[key]`` in theta's tangent space (gtsam's local coordinates)."""
+    c = chr(gtsam.Symbol(key).chr())
+    if c == "x":
+        return theta.atPose3(key).localCoordinates(values.atPose3(key))
+    if c == "v":
+        return np.asarray(values.atVector(key)) - np.asarray(theta.atVector(key))
+    if c in "bc":
+        return values.atConstantBias(key).vector() - theta.atConstantBias(key).vector()
+    return np.asarray(values.atPoint3(key)) - np.asarray(theta.atPoint3(key))
+
+
+def _insert_retracted(values: gtsam.Values, theta: gtsam.Values, key: int, dx: np.ndarray) -> None:
+    """``values[key] = theta[key] + dx`` (gtsam's retraction)."""
+    c = chr(gtsam.Symbol(key).chr())
+    if c == "x":
+        values.insert(key, theta.atPose3(key).retract(dx))
+    elif c == "v":
+        values.insert(key, np.asarray(theta.atVector(key)) + dx)
+    elif c in "bc":
+        v = theta.atConstantBias(key).vector() + dx
+        values.insert(key, gtsam.imuBias.ConstantBias(v[:3], v[3:]))
+    else:
+        values.insert(key, np.asarray(theta.atPoint3(key)) + dx)
+
+
+@dataclass(frozen=True)
+class _WrittenOut:
+    """Frames that left iSAM2: ``R dx_key + S dx_parents = d`` for each, in elimination order.
+
+    ``dx`` are tangent vectors at ``theta`` (the running estimate when they
+    left); the parents are later frames of the same block, or the variables
+    that stayed (the newest frame, the landmarks, the bias).
+    """
+
+    conditionals: tuple[Conditional, ...]
+    d: tuple[np.ndarray, ...]
+    theta: gtsam.Values
+    end: int  # the first frame that stayed
+
+    @staticmethod
+    def of(net: gtsam.GaussianBayesNet, theta: gtsam.Values, end: int) -> _WrittenOut:
+        conds, ds = [], []
+        for k in range(net.size()):
+            c = net.at(k)
+            if c.get_model() is not None:
+                raise RuntimeError("iSAM2 window: a conditional with a noise model")
+            keys = c.keys()
+            conds.append(Conditional(keys[0], np.array(c.R()), tuple(keys[1:]), np.array(c.S())))
+            ds.append(np.array(c.d(), float).reshape(-1))
+        return _WrittenOut(tuple(conds), tuple(ds), theta, end)
+
+    def back_substitute(self, final: gtsam.Values) -> None:
+        """Insert the final estimate of each frame variable into ``final`` (its parents there)."""
+        delta: dict[int, np.ndarray] = {}
+        for c, d in zip(reversed(self.conditionals), reversed(self.d), strict=True):
+            parts = []
+            for p in c.parents:
+                if p not in delta:
+                    delta[p] = _tangent(final, self.theta, p)
+                parts.append(delta[p])
+            rhs = d - c.S @ np.concatenate(parts) if parts else d
+            dx = np.linalg.solve(c.R, rhs)
+            delta[c.key] = dx
+            _insert_retracted(final, self.theta, c.key, dx)
+
+
 class _Isam2Run:
     """The state of one incremental solve: iSAM2, the current landmark copies, the last estimate."""
 
@@ -862,6 +946,7 @@ class _Isam2Run:
         s = b.s
         self.b = b
         self.s = s
+        self.want_sigmas = False
         self.isam = gtsam.ISAM2(_isam2_params(s))
         self.n_lm = len(b.m.landmark_code)
         self.cv = s.motion == CONSTANT_VELOCITY
@@ -874,6 +959,8 @@ class _Isam2Run:
         self.default = gtsam.Pose3(default_world_T_cam)
         self.prev_pose: gtsam.Pose3 | None = None
         self.prev_vel = np.zeros(3)
+        self.start = 0  # the first frame in the current iSAM2
+        self.written: list[_WrittenOut] = []
 
     def _new_segment(self, i: int, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
         """Fresh copies of the landmarks seen so far (and of the bias), tied to the old ones."""
@@ -963,7 +1050,59 @@ class _Isam2Run:
         self.prev_pose = self.isam.calculateEstimatePose3(X(i))
         if self.cv:
             self.prev_vel = np.asarray(self.isam.calculateEstimateVector(V(i))).reshape(3)
+        window = int(self.s.isam_window_frames)
+        if window > 0 and i - self.start >= window:
+            self._write_out(i)
         return self.prev_pose.matrix()
+
+    def _write_out(self, i: int) -> None:
+        """Frames start..i-1 leave iSAM2 (see ``isam_window_frames``); a fresh one holds the rest.
+
+        They leave linearised where they will stay: first a few Gauss-Newton
+        steps with every variable relinearised (the running iSAM2 leaves
+        variables whose step is under the threshold where they were).
+        """
+        force = gtsam.ISAM2UpdateParams()
+        force.force_relinearize = True
+        for _ in range(WRITE_OUT_STEPS):
+            self.isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), force)
+        values = self.isam.calculateEstimate()
+        old = {X(k) for k in range(self.start, i)}
+        if self.cv:
+            old |= {V(k) for k in range(self.start, i)}
+        current = {self.lm_keys[j] for j in self.added_lm} | {self.bias_key}
+        held = values.keys()
+        copies = [k for k in held if chr(gtsam.Symbol(k).chr()) in "lmbc"]
+        copies = [k for k in copies if k not in current]  # landmark and bias copies replaced
+        old |= set(copies)
+        factors = self.isam.getFactorsUnsafe()
+        keep, leave = gtsam.NonlinearFactorGraph(), gtsam.NonlinearFactorGraph()
+        for k in range(factors.size()):
+            f = factors.at(k)
+            if f is not None:
+                involved = f.keys()
+                (leave if any(key in old for key in involved) else keep).add(f)
+        order = gtsam.Ordering()
+        for k in range(self.start, i):
+            order.push_back(X(k))
+            if self.cv:
+                order.push_back(V(k))
+        for k in copies:
+            order.push_back(k)
+        net, marginal = leave.linearize(values).eliminatePartialSequential(order)
+        self.written.append(_WrittenOut.of(net, values, i))
+        for k in range(marginal.size()):
+            keep.add(gtsam.LinearContainerFactor(marginal.at(k), values))
+        kept = gtsam.Values()
+        kept.insert(X(i), values.atPose3(X(i)))
+        if self.cv:
+            kept.insert(V(i), values.atVector(V(i)))
+            kept.insert(self.bias_key, values.atConstantBias(self.bias_key))
+        for j in self.added_lm:
+            kept.insert(self.lm_keys[j], values.atPoint3(self.lm_keys[j]))
+        self.isam = gtsam.ISAM2(_isam2_params(self.s))
+        self.isam.update(keep, kept)
+        self.start = i
 
     def converge(self) -> gtsam.ISAM2:
         """Converge to the batch solution.
@@ -992,6 +1131,25 @@ class _Isam2Run:
                 break
         return final
 
+    def covariances(self, isam: gtsam.ISAM2, result: gtsam.Values, n: int) -> np.ndarray:
+        """(N, 6, 6) pose covariances: the written-out conditionals, then the last window's."""
+        order = gtsam.Ordering()
+        for k in range(self.start, n):
+            order.push_back(X(k))
+            if self.cv:
+                order.push_back(V(k))
+        window = set(isam.getLinearizationPoint().keys())
+        for k in sorted(window):
+            if chr(gtsam.Symbol(k).chr()) in "lmbc":
+                order.push_back(k)
+        net = isam.getFactorsUnsafe().linearize(result).eliminateSequential(order)
+        last = _net_conditionals(net)
+        if last is None:
+            return np.full((n, 6, 6), np.nan)
+        conds = [c for block in self.written for c in block.conditionals] + last
+        cov = _pose_covariances(conds, n)
+        return np.full((n, 6, 6), np.nan) if cov is None else cov
+
     def landmarks(self, result: gtsam.Values) -> np.ndarray:
         """(L, 3) the latest copy of every landmark; the survey for landmarks never seen."""
         m = self.b.m
@@ -1001,6 +1159,70 @@ class _Isam2Run:
                 for j in range(self.n_lm)
             ]
         ).reshape(-1, 3)
+
+
+# Priors that hold the variables around a block at their final values while
+# the block is solved again (as the fixed landmark model's).
+HOLD_SIGMA = 1e-6
+
+
+def _refine_blocks(run: _Isam2Run, result: gtsam.Values, n: int) -> None:
+    """Each written-out block of frames solved again given the final landmarks, bias and neighbours.
+
+    The blocks left iSAM2 linearised at the running estimate of their time,
+    centimetres from the final one; back-substitution through those
+    conditionals lands millimetres from the batch solution. With every other
+    variable at its final value, a block's own optimum is the joint one: one
+    small Levenberg-Marquardt solve per block (new factors from the
+    measurements, so nothing of the block was kept but its conditionals).
+    """
+    b, s = run.b, run.s
+    bounds = [0] + [blk.end for blk in run.written]
+    for a, e in zip(bounds[:-1], bounds[1:], strict=True):
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        hold_pose = gtsam.noiseModel.Isotropic.Sigma(6, HOLD_SIGMA)
+        hold_3 = gtsam.noiseModel.Isotropic.Sigma(3, HOLD_SIGMA)
+        if a == 0:  # the first frame's weak priors (the bias is held below)
+            first = gtsam.NonlinearFactorGraph()
+            b.first_priors(result.atPose3(X(0)), first)
+            for k in range(first.size()):
+                involved = first.at(k).keys()
+                if BIAS_KEY not in involved:
+                    graph.add(first.at(k))
+        held = [k for k in (a - 1, e) if 0 <= k < n]
+        for k in range(a, e):
+            values.insert(X(k), result.atPose3(X(k)))
+            if run.cv:
+                values.insert(V(k), result.atVector(V(k)))
+        for k in held:
+            values.insert(X(k), result.atPose3(X(k)))
+            graph.add(gtsam.PriorFactorPose3(X(k), result.atPose3(X(k)), hold_pose))
+            if run.cv:
+                values.insert(V(k), result.atVector(V(k)))
+                graph.add(gtsam.PriorFactorVector(V(k), result.atVector(V(k)), hold_3))
+        touched: set[int] = set()
+        for k in range(a, e):
+            touched |= b.projection_factors(k, graph, run.lm_keys)
+        for k in range(max(a, 1), min(e + 1, n)):
+            b.motion_factor(k, graph, run.bias_key)
+        for j in touched:
+            key = run.lm_keys[j]
+            values.insert(key, result.atPoint3(key))
+            graph.add(gtsam.PriorFactorPoint3(key, result.atPoint3(key), hold_3))
+        if run.cv:
+            bias = result.atConstantBias(run.bias_key)
+            values.insert(run.bias_key, bias)
+            hold_b = gtsam.noiseModel.Isotropic.Sigma(6, HOLD_SIGMA)
+            graph.add(gtsam.PriorFactorConstantBias(run.bias_key, bias, hold_b))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(s.lm_max_iterations)
+        params.setRelativeErrorTol(s.lm_rel_tol)
+        solved = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        for k in range(a, e):
+            result.update(X(k), solved.atPose3(X(k)))
+            if run.cv:
+                result.update(V(k), solved.atVector(V(k)))
 
 
 def smooth_isam2(
@@ -1022,6 +1244,7 @@ def smooth_isam2(
     t0 = time.perf_counter()
     n = meas.n_frames
     run = _Isam2Run(_GraphBuilder(meas, stamps_s, camera, s), default_world_T_cam)
+    run.want_sigmas = _want_sigmas(s, n)
     causal = np.empty((n, 4, 4))
     per_ms = np.empty(n)
     per_cpu_ms = np.empty(n)
@@ -1032,13 +1255,20 @@ def smooth_isam2(
         per_cpu_ms[i] = (time.process_time() - c_frame) * 1e3
     isam = run.converge()
     result = isam.calculateBestEstimate()
+    final_error = float(isam.getFactorsUnsafe().error(result))  # of the last window's graph
+    for block in reversed(run.written):
+        block.back_substitute(result)
+    _refine_blocks(run, result, n)
     seconds = time.perf_counter() - t0
-    poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
+    poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)]).reshape(n, 4, 4)
     cov6 = None
     sigma_seconds = 0.0
-    if _want_sigmas(s, n):
+    if run.want_sigmas:
         t1 = time.perf_counter()
-        cov6 = np.array([isam.marginalCovariance(X(i)) for i in range(n)])
+        if run.written:
+            cov6 = run.covariances(isam, result, n)
+        else:
+            cov6 = np.array([isam.marginalCovariance(X(i)) for i in range(n)])
         sigma_seconds = time.perf_counter() - t1
     observed, signs = _observed_and_signs(meas)
     return SmootherResult(
@@ -1052,7 +1282,7 @@ def smooth_isam2(
         sigma_seconds=sigma_seconds,
         per_frame_ms=per_ms,
         per_frame_cpu_ms=per_cpu_ms,
-        final_error=float(isam.getFactorsUnsafe().error(result)),
+        final_error=final_error,
         cov6=cov6,
     )
 
