@@ -770,8 +770,10 @@ class SignDetector:
         off by nearly the same image shift (mostly the camera's rotation since
         the pose): largest predicted sign first, each verification uses the
         offset of the nearest sign found so far. When the first fails before
-        any is found, that one sign is searched and decoded in full to learn
-        the shift (an anchor). The predictions left to search carry the shift.
+        any is found, the region around it (``track_anchor_margin``) is
+        searched and decoded in full (an anchor): the predicted signs read
+        there are found, and their offsets guide the others. The predictions
+        left to search carry the median offset.
         """
         order = sorted(
             range(len(predictions)),
@@ -780,41 +782,57 @@ class SignDetector:
         found: list[SignObservation] = []
         offsets: list[tuple[float, float]] = []
         outcomes: dict[int, VerifyOutcome] = {}
-        rest: list[int] = []
+        done: set[int] = set()
         anchored = False
         for i in order:
             p = predictions[i]
-            if p.image_H_sign is None or not self.settings.decode:
-                rest.append(i)
+            if i in done or p.image_H_sign is None or not self.settings.decode:
                 continue
             shift = _offset_near(p, found, offsets)
             v = verify_sign(gray, _shifted_homography(p.image_H_sign, shift), p.code, codes)
             outcomes[i] = v.outcome
-            obs = _verified_observation(v.result) if v.ok else None
-            if obs is None and not offsets and not anchored:
+            if v.ok:
+                found.append(_verified_observation(v.result))
+                offsets.append(_offset(found[-1], p))
+                done.add(i)
+            elif not offsets and not anchored:
                 anchored = True
-                obs = self._anchor(gray, p, codes)
-            if obs is None:
-                rest.append(i)
-                continue
-            found.append(obs)
-            offsets.append((obs.center_px[0] - p.center_px[0], obs.center_px[1] - p.center_px[1]))
+                for j, obs in self._anchor(gray, p, predictions, done, codes):
+                    found.append(obs)
+                    offsets.append(_offset(obs, predictions[j]))
+                    done.add(j)
         shift = tuple(np.median(offsets, axis=0)) if offsets else (0.0, 0.0)
-        left = [_shifted_prediction(predictions[i], shift) for i in sorted(rest)]
+        left = [
+            _shifted_prediction(predictions[i], shift)
+            for i in range(len(predictions))
+            if i not in done
+        ]
         return found, tuple(outcomes[i] for i in sorted(outcomes)), left
 
     def _anchor(
-        self, gray: np.ndarray, p: PredictedSign, codes: tuple[str, ...] | None
-    ) -> SignObservation | None:
-        """Sign ``p`` searched around its predicted place and decoded in full, or None."""
+        self,
+        gray: np.ndarray,
+        p: PredictedSign,
+        predictions: Sequence[PredictedSign],
+        done: set[int],
+        codes: tuple[str, ...] | None,
+    ) -> list[tuple[int, SignObservation]]:
+        """(prediction index, reading) of the predicted signs read around ``p``.
+
+        The region around ``p`` (``track_anchor_margin``) is searched and each
+        of its regions decoded in full; a reading of a predicted code not yet
+        found is that sign (the nearest of that code's readings).
+        """
         regions, counts = self.merge(
             self._tracked_raw(gray, [p], self.settings.track_anchor_margin)
         )
         dets, _ = self._decode(gray, regions, counts, codes)
-        mine = [d for d in dets if d.code == p.code]
-        if not mine:
-            return None
-        return min(mine, key=lambda d: math.dist(d.center_px, p.center_px))
+        out = []
+        for j, q in enumerate(predictions):
+            mine = [d for d in dets if d.code == q.code]
+            if j not in done and mine:
+                out.append((j, min(mine, key=lambda d: math.dist(d.center_px, q.center_px))))
+        return out
 
     def _tracking_held(
         self,
@@ -890,6 +908,11 @@ def _observation(
             if k in res.keypoints_px
         },
     )
+
+
+def _offset(obs: SignObservation, p: PredictedSign) -> tuple[float, float]:
+    """Where ``obs`` was read relative to where ``p`` predicted it [px]."""
+    return (obs.center_px[0] - p.center_px[0], obs.center_px[1] - p.center_px[1])
 
 
 def _offset_near(

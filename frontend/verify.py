@@ -55,7 +55,6 @@ from signpose.frontend.decoder import (
     _as_gray,
     _consistent,
     _fill_deficit,
-    _fit_parts,
     _inside,
     _LazyFlag,
     _mean_sigma,
@@ -67,7 +66,7 @@ from signpose.frontend.decoder import (
     _translated,
     keypoint_sigmas,
 )
-from signpose.frontend.homography import polygon_centroids
+from signpose.frontend.homography import fit_homography, polygon_centroids, prepare_source
 
 
 class VerifyOutcome(enum.StrEnum):
@@ -104,7 +103,7 @@ class VerifySettings:
     """
 
     align_grow: float = 0.05
-    align_passes: int = 1
+    align_passes: int = 2
     max_shift: float = 0.15
     max_residual_px: float = 0.35
     max_residual_frac: float = 0.01
@@ -231,19 +230,41 @@ def _refit(
 ) -> tuple[np.ndarray | None, float]:
     """One refit to the measured centroids: (image_H_sign, RMS residual [px] or NaN).
 
-    Four or more parts: the decoder's homography fit. Three (codes with one
-    white slot): too few for a homography, so the prediction keeps the
-    perspective and an affine map, exact on the three, moves the parts'
-    predicted image centroids onto the measured ones.
+    A rectangle's image centroid is not the image of its centre: the offset
+    between the two, predicted by the aligned homography (already within a
+    pixel or so, and the offset is second order in the part's size), is
+    taken off the measured centroids before one linear fit, as the decoder's
+    ``_fit_parts`` does with its own first fit. Four or more parts: a
+    homography (the residual as the decoder reports it: NaN for an exact
+    fit of four). Three (codes with one white slot): too few for a
+    homography, so the prediction keeps the perspective and an affine map,
+    exact on the three, moves the parts' predicted centroids onto the
+    measured ones.
     """
-    if len(parts) >= 4:
-        return _fit_parts(parts, cents, None, passes=1 if ds.perspective_correction else 0)
     quads = _PART_QUADS[parts]
     predicted = polygon_centroids(_project(aligned, quads.reshape(-1, 2)).reshape(quads.shape))
-    a = cv2.getAffineTransform(predicted.astype(np.float32), cents.astype(np.float32))
-    if not np.isfinite(a).all():
-        return None, float("nan")
-    return np.vstack([a, [0.0, 0.0, 1.0]]) @ aligned, float("nan")
+    if len(parts) < 4:
+        a = cv2.getAffineTransform(predicted.astype(np.float32), cents.astype(np.float32))
+        if not np.isfinite(a).all():
+            return None, float("nan")
+        return np.vstack([a, [0.0, 0.0, 1.0]]) @ aligned, float("nan")
+    src = _PART_CENTRES[parts]
+    offset = predicted - _project(aligned, src) if ds.perspective_correction else 0.0
+    h = fit_homography(src, cents - offset, _prepared(parts))
+    if h is None or len(parts) == 4:
+        return h, float("nan")
+    resid = _project(h, src) + offset - cents
+    return h, float(np.sqrt((resid**2).sum(axis=1).mean()))
+
+
+_PREPARED: dict[tuple[int, ...], tuple] = {}
+
+
+def _prepared(parts: list[int]) -> tuple:
+    key = tuple(parts)
+    if key not in _PREPARED:
+        _PREPARED[key] = prepare_source(_PART_CENTRES[list(key)])
+    return _PREPARED[key]
 
 
 def _refit_and_check(

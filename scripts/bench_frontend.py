@@ -137,6 +137,7 @@ def _frame_modes(det, aruco, scene, sign_map, repeat):
     passes = {m: [[] for _ in range(repeat)] for m in MODES}
     tallies = {m: collections.Counter() for m in MODES if m != "aruco"}
     outcomes = collections.Counter()
+    parts = {m: collections.defaultdict(list) for m in tallies}
     trackers = {
         "track": _Tracking(sign_map, scene["camera"], codes, True),
         "track_search": _Tracking(sign_map, scene["camera"], codes, False),
@@ -160,12 +161,17 @@ def _frame_modes(det, aruco, scene, sign_map, repeat):
                 if r or m == "aruco":
                     continue
                 _score(res.detections, scene["boxes"][i], tallies[m])
+                for part in ("cascade", "verify", "decode"):
+                    parts[m][part].append(res.timing.get(part, 0.0))
                 if m in trackers:
                     tallies[m]["full_frames"] += int(not plans[m].predictions or res.fell_back)
                     trackers[m].done(i, plans[m], res, f.shape)
                     if m == "track":
                         outcomes.update(o.value for o in res.verifications)
     per_frame = {m: [min(v) for v in zip(*passes[m], strict=True)] for m in MODES}
+    for m, t in tallies.items():
+        for part, v in parts[m].items():
+            t[f"{part}_ms_median"] = statistics.median(v)  # wall, pass 0
     return per_frame, passes, tallies, outcomes
 
 
@@ -258,6 +264,11 @@ def _print_scene(name: str, res: dict, n: int) -> None:
         print(
             f"  {m:13s} found {t['found']} (>= 18 px: {t['found_ge18']} of {t['signs']}), "
             f"wrong codes {t['wrong']}, full-frame searches {t['full_frames']}"
+        )
+        print(
+            f"  {'':13s} wall medians: cascade {t['cascade_ms_median']:.1f} ms, verification"
+            f" {t['verify_ms_median']:.1f} ms, decoder (verification included)"
+            f" {t['decode_ms_median']:.1f} ms"
         )
     print(f"  verifications: {res['verifications']}")
     c = res["crops"]
