@@ -22,7 +22,13 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
 from signpose.estimator.fusion import FusionResult, FusionSettings, fuse_trajectory
-from signpose.estimator.perframe import FramePose, PerFrameSettings, PoseFailure, run_per_frame
+from signpose.estimator.perframe import (
+    FramePose,
+    PerFrameSettings,
+    PoseFailure,
+    SolvedPnP,
+    run_per_frame,
+)
 from signpose.estimator.projection import (
     MIN_DEPTH_M,
     cam_points,
@@ -707,6 +713,7 @@ def estimate_trajectories(
     progress: bool = True,
     telemetry: Telemetry | None = None,
     fusion: FusionSettings | None = None,
+    solved_pnp: Sequence[SolvedPnP] = (),
 ) -> EstimateResult:
     """Every requested method's trajectory for one flight.
 
@@ -717,6 +724,9 @@ def estimate_trajectories(
         settings: methods, solver and their settings.
         progress: show tqdm bars over frames.
         telemetry, fusion: the drone's GNSS/IMU/gimbal (None: nothing changes), its fusion.
+        solved_pnp: PnP calls the tracker made on these frames; the "pnp"
+            method reuses those whose inputs are exactly its own (see
+            ``perframe.run_per_frame``): the result is the same.
 
     Returns:
         The EstimateResult. Methods: "baseline", "pnp", "smoothed" as asked;
@@ -740,7 +750,10 @@ def estimate_trajectories(
         # PnP also initialises the smoother (it works with fewer than 4 signs).
         if name in wanted or (name == "pnp" and "smoothed" in wanted):
             t0 = time.perf_counter()
-            per_frame[name] = run_per_frame(frames, sign_map, camera, name, s.per_frame, progress)
+            solved = solved_pnp if name == "pnp" else ()
+            per_frame[name] = run_per_frame(
+                frames, sign_map, camera, name, s.per_frame, progress, solved
+            )
             timing[name] = time.perf_counter() - t0
             if name in wanted:
                 methods[name] = _from_frame_poses(name, stamps, per_frame[name], s.status)

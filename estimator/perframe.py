@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -531,6 +532,73 @@ def solve_frame_pnp(
     return posed(best[0], used, rms_px=best[1], **c.fit(camera, best[0], inliers))
 
 
+@dataclass(frozen=True)
+class SolvedPnP:
+    """One frame's ``solve_frame_pnp`` call made elsewhere (the tracker's), to be reused.
+
+    Attributes:
+        observations: the frame it was solved on (the very object).
+        prior_world_T_cam: the prior it was given, or None.
+        settings: the settings it was given (None: the defaults).
+        pose: what it returned.
+        sign_map: the map it was given.
+        camera: the camera it was given.
+    """
+
+    observations: FrameObservations
+    prior_world_T_cam: np.ndarray | None
+    settings: PerFrameSettings | None
+    pose: FramePose
+    sign_map: SignMap
+    camera: CameraModel
+
+    def answers(
+        self, frame: FrameObservations, prior: np.ndarray | None, s: PerFrameSettings
+    ) -> bool:
+        """True when this call had exactly this frame, prior and settings."""
+        if frame is not self.observations or (self.settings or PerFrameSettings()) != s:
+            return False
+        if prior is None or self.prior_world_T_cam is None:
+            return prior is None and self.prior_world_T_cam is None
+        a, b = np.asarray(prior), np.asarray(self.prior_world_T_cam)
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def _same_object(a, b) -> bool:
+    """The same object, or one with the same pickled bytes (a copy from another process)."""
+    if a is b:
+        return True
+    try:
+        return pickle.dumps(a) == pickle.dumps(b)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return False
+
+
+def _chained_pnp(
+    frames, sign_map: SignMap, camera: CameraModel, s: PerFrameSettings, solved
+) -> list[FramePose]:
+    """PnP frame by frame, each with the last pose as prior; a ``solved`` call with
+    the same inputs is taken instead of solving again."""
+    known = {id(k.observations): k for k in solved}
+    context: dict[tuple[int, int], bool] = {}  # (map, camera) of the calls: the same as ours?
+    for k in solved:
+        pair = (id(k.sign_map), id(k.camera))
+        if pair not in context:
+            context[pair] = _same_object(k.sign_map, sign_map) and _same_object(k.camera, camera)
+    out: list[FramePose] = []
+    prior = None
+    for f in frames:
+        k = known.get(id(f))
+        if k is not None and context[(id(k.sign_map), id(k.camera))] and k.answers(f, prior, s):
+            p = k.pose
+        else:
+            p = solve_frame_pnp(f, sign_map, camera, prior, s)
+        if p.world_T_cam is not None:
+            prior = p.world_T_cam
+        out.append(p)
+    return out
+
+
 def run_per_frame(
     frames: Sequence[FrameObservations],
     sign_map: SignMap,
@@ -538,8 +606,16 @@ def run_per_frame(
     method: str,
     settings: PerFrameSettings | None = None,
     progress: bool = False,
+    solved: Sequence[SolvedPnP] = (),
 ) -> list[FramePose]:
-    """Run ``"baseline"`` (with the speed gate) or ``"pnp"`` (chained priors) over a flight."""
+    """Run ``"baseline"`` (with the speed gate) or ``"pnp"`` (chained priors) over a flight.
+
+    ``solved``: PnP calls already made on these frames (the pipeline's tracker
+    poses every frame with the previous frame's pose as prior); where one had
+    exactly the inputs the chain gives a frame (the same observations object,
+    equal settings, an equal map and camera, a bit-identical prior) its result
+    is used, not solved again: the output is the same bytes either way.
+    """
     s = settings or PerFrameSettings()
     out: list[FramePose] = []
     it = tqdm(frames, desc=method, unit="frame", disable=not progress, leave=False)
@@ -547,12 +623,7 @@ def run_per_frame(
         tracker = BaselineTracker(sign_map, camera, s)
         out = [tracker.solve(f) for f in it]
     elif method == "pnp":
-        prior = None
-        for f in it:
-            p = solve_frame_pnp(f, sign_map, camera, prior, s)
-            if p.world_T_cam is not None:
-                prior = p.world_T_cam
-            out.append(p)
+        out = _chained_pnp(it, sign_map, camera, s, solved)
     else:
         raise ValueError(f"unknown per-frame method {method!r}")
     return out
