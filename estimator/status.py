@@ -20,7 +20,9 @@ class PoseStatus(enum.Enum):
     OK: the frame's signs fix the pose and its residuals pass the chi-square test.
     WEAK: too few keypoints to fix the pose alone, or an ill-conditioned
         geometry (worst-axis sigma above the setting).
-    BRIDGED: no sign seen; the pose comes from the motion prior.
+    BRIDGED: no sign seen; the pose comes from the motion prior (for the
+        "fused" method from the IMU/GNSS: its sigma, the fusion's marginal,
+        says how well).
     SUSPECT: its residuals fail the chi-square test after the solve.
     """
 

@@ -23,6 +23,7 @@ from signpose.estimator.status import PoseStatus
 from signpose.maps.geodesy import GeoOrigin
 from signpose.maps.loader import bundled_map_path, load_map
 
+from signpose.core.errors import InputError
 from signpose.sim.observations import synthesize_observations
 from signpose.sim.telemetry import (
     TelemetrySimSettings,
@@ -184,3 +185,18 @@ def test_estimate_trajectories_adds_fused_and_keeps_smoothed(flight):
     err_fused = np.linalg.norm(fused.world_T_cam[:, :3, 3] - truth, axis=1)
     err_smoothed = np.linalg.norm(both.methods["smoothed"].world_T_cam[:, :3, 3] - truth, axis=1)
     assert np.sqrt(np.mean(err_fused**2)) < np.sqrt(np.mean(err_smoothed**2))
+
+
+def test_gnss_without_map_origin_is_one_input_error(flight):
+    f = flight
+    no_origin = replace(f["sign_map"], origin=None, source="site.yaml")
+    with pytest.raises(InputError, match=r"^site\.yaml: the map has no 'origin'"):
+        fuse_trajectory(
+            f["frames"],
+            no_origin,
+            f["camera"],
+            f["gt"].stamps_s,
+            replace(f["tel"], imu=None),
+            replace(f["settings"], clock_offset_s=OFFSET_S),
+            vision_result=f["vision"],
+        )
