@@ -705,6 +705,30 @@ def _smoothed(
     )
 
 
+def _per_frame_methods(
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    s: EstimatorSettings,
+    progress: bool,
+    solved_pnp: Sequence[SolvedPnP],
+    timing: dict[str, float],
+) -> dict[str, list[FramePose]]:
+    """The baseline and PnP poses the settings need (PnP also initialises the smoother)."""
+    per_frame: dict[str, list[FramePose]] = {}
+    wanted = set(s.methods)
+    for name in ("baseline", "pnp"):
+        # PnP also initialises the smoother (it works with fewer than 4 signs).
+        if name in wanted or (name == "pnp" and "smoothed" in wanted):
+            t0 = time.perf_counter()
+            solved = solved_pnp if name == "pnp" else ()
+            per_frame[name] = run_per_frame(
+                frames, sign_map, camera, name, s.per_frame, progress, solved
+            )
+            timing[name] = time.perf_counter() - t0
+    return per_frame
+
+
 def estimate_trajectories(
     frames: Sequence[FrameObservations],
     sign_map: SignMap,
@@ -744,19 +768,11 @@ def estimate_trajectories(
         [sum(o.code in map_codes for o in f.signs) for f in frames], dtype=np.int64
     )
     unknown = tuple((f.frame, o.code) for f in frames for o in f.signs if o.code not in map_codes)
-    per_frame: dict[str, list[FramePose]] = {}
     wanted = set(s.methods)
-    for name in ("baseline", "pnp"):
-        # PnP also initialises the smoother (it works with fewer than 4 signs).
-        if name in wanted or (name == "pnp" and "smoothed" in wanted):
-            t0 = time.perf_counter()
-            solved = solved_pnp if name == "pnp" else ()
-            per_frame[name] = run_per_frame(
-                frames, sign_map, camera, name, s.per_frame, progress, solved
-            )
-            timing[name] = time.perf_counter() - t0
-            if name in wanted:
-                methods[name] = _from_frame_poses(name, stamps, per_frame[name], s.status)
+    per_frame = _per_frame_methods(frames, sign_map, camera, s, progress, solved_pnp, timing)
+    for name, poses in per_frame.items():
+        if name in wanted:
+            methods[name] = _from_frame_poses(name, stamps, poses, s.status)
     down: tuple[Outlier, ...] = ()
     mis: tuple[Misdecode, ...] = ()
     rejected_obs: tuple[Rejection, ...] = ()
