@@ -22,7 +22,9 @@ from signpose.cli import main
 from signpose.cli.run import print_result
 from signpose.core.errors import InputError
 from signpose.io import mcap as mcap_io
-from signpose.io.telemetry import TelemetryRequest
+from signpose.io.foxglove import camera_calibration, compressed_image, location_fix
+from signpose.io.sources import open_source
+from signpose.io.telemetry import TelemetryRequest, read_telemetry
 from signpose.io.tum import read_tum
 
 ORIGIN = {"lat_deg": 46.5, "lon_deg": 7.25, "height_m": 800.0}
@@ -165,10 +167,39 @@ def test_telemetry_options_without_a_file_are_refused(flight, site, tmp_path, ca
     _one_error_line(capsys, "finite")
 
 
-def test_estimate_fuses_the_same_telemetry_from_observations(flight, site, tmp_path, capsys):
+def _log_with_fixes(path: Path, flight, tel_csv: Path) -> Path:
+    """An MCAP with the flight's images, its camera and the GNSS as foxglove.LocationFix."""
+    fixes = read_telemetry(tel_csv).gnss
+    with mcap_io.McapJsonWriter(path) as w:
+        w.write("/camera/calibration", "CameraCalibration", camera_calibration(0, flight.camera), 0)
+        for frame in open_source(flight.frames_path):
+            msg = compressed_image(frame.stamp_ns, frame.image)
+            w.write("/camera/image/compressed", "CompressedImage", msg, frame.stamp_ns)
+        for k in range(len(fixes)):
+            t = int(round(fixes.t_s[k] * 1e9))
+            msg = location_fix(t, "gnss", fixes.lat_deg[k], fixes.lon_deg[k], fixes.height_m[k])
+            w.write("/gnss/fix", "LocationFix", msg, t)
+    return path
+
+
+def test_the_input_log_itself_holds_the_telemetry_and_estimate_fuses_it_too(
+    flight, site, tmp_path, capsys
+):
     tel = _gnss_csv(tmp_path / "gnss.csv", flight)
+    log = _log_with_fixes(tmp_path / "flight.mcap", flight, tel)
     run_out = tmp_path / "run"
-    _run(flight, site["plain"], run_out, None, full=False)  # for its observations.jsonl
+    settings = pipeline.RunSettings(
+        telemetry=TelemetryRequest(None, "/gnss/fix", 0.0), plots=False, mcap=False
+    )
+    result = pipeline.run(
+        log,
+        load_map(site["anchored"]),
+        run_out,
+        settings=settings,
+        progress=False,
+        detector=truth_detector(flight),
+    )
+    assert "fused" in result.coverage and result.notes[0] == f"telemetry {log}: 15 GNSS fixes"
     out = tmp_path / "est"
     args = ["estimate", run_out / "observations.jsonl", "--map", site["anchored"]]
     args += ["--camera", flight.camera_path, "--out", out, "--telemetry", tel]
