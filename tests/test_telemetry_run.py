@@ -165,6 +165,8 @@ def test_telemetry_options_without_a_file_are_refused(flight, site, tmp_path, ca
     _one_error_line(capsys, "--telemetry-offset needs --telemetry")
     assert main(_cli(*base, "--telemetry", tmp_path / "x.csv", "--telemetry-offset", "nan")) == 2
     _one_error_line(capsys, "finite")
+    assert main(_cli(*base, "--telemetry-topic", "/fix")) == 2
+    _one_error_line(capsys, str(flight.frames_path), "not an MCAP / rosbag2 log")
 
 
 def _log_with_fixes(path: Path, flight, tel_csv: Path) -> Path:

@@ -89,8 +89,19 @@ def read_requested(
     request: TelemetryRequest, input_path: str | os.PathLike, video_start_s: float = 0.0
 ) -> Telemetry:
     """The telemetry a request names (the input log itself when its path is None)."""
-    path = request.path if request.path is not None else Path(input_path)
-    return read_telemetry(path, request.topic, video_start_s=video_start_s)
+    if request.path is None:
+        p = Path(input_path)
+        try:
+            kind = _kind(p) if p.exists() else None
+        except InputError:  # a video, an image folder
+            kind = None
+        if kind != "log":
+            raise InputError(
+                f"{p}: --telemetry-topic without --telemetry reads the input log, and this is "
+                "not an MCAP / rosbag2 log; pass --telemetry FILE"
+            )
+        return read_telemetry(p, request.topic, video_start_s=video_start_s)
+    return read_telemetry(request.path, request.topic, video_start_s=video_start_s)
 
 
 def describe(telemetry: Telemetry) -> str:
