@@ -396,17 +396,29 @@ def _add_imu(
 # ----------------------------------------------------------------- gimbal
 
 
+# ENU from NED axes, and the camera's (OpenCV) axes in the gimbal's FRD frame.
+_ENU_R_NED = np.array([[0, 1.0, 0], [1.0, 0, 0], [0, 0, -1.0]])
+_FRD_R_CAM = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
+
+
 def world_R_cam_from_gimbal(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
-    """(3, 3) camera (OpenCV axes) in ENU from DJI gimbal angles (yaw from north, clockwise)."""
+    """(3, 3) camera (OpenCV axes) in ENU from DJI gimbal angles (yaw from north, clockwise;
+    pitch negative looking down; Z-Y-X Euler angles of the gimbal's FRD frame in NED)."""
     y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
     cz, sz, cy, sy, cx, sx = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
     Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1.0]])
     Ry = np.array([[cy, 0, sy], [0, 1.0, 0], [-sy, 0, cy]])
     Rx = np.array([[1.0, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ned_R_frd = Rz @ Ry @ Rx
-    enu_R_ned = np.array([[0, 1.0, 0], [1.0, 0, 0], [0, 0, -1.0]])
-    frd_R_cam = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
-    return enu_R_ned @ ned_R_frd @ frd_R_cam
+    return _ENU_R_NED @ (Rz @ Ry @ Rx) @ _FRD_R_CAM
+
+
+def gimbal_from_world_R_cam(world_R_cam: np.ndarray) -> tuple[float, float, float]:
+    """DJI (yaw, pitch, roll) [deg] of a camera rotation in ENU (inverse of the above)."""
+    R = _ENU_R_NED.T @ np.asarray(world_R_cam, float) @ _FRD_R_CAM.T
+    pitch = -math.asin(max(-1.0, min(1.0, R[2, 0])))
+    yaw = math.atan2(R[1, 0], R[0, 0])
+    roll = math.atan2(R[2, 1], R[2, 2])
+    return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
 
 
 def _add_gimbal(

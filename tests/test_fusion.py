@@ -15,6 +15,7 @@ from signpose.estimator.fusion import (
     FusionSettings,
     estimate_clock_offset,
     fuse_trajectory,
+    gimbal_from_world_R_cam,
     gnss_factor,
     vision_solve,
     world_R_cam_from_gimbal,
@@ -43,7 +44,7 @@ def flight():
     truth = away_and_back(sign_map, seed=2)
     gt = truth.trajectory(5.0)
     frames, _ = synthesize_observations(sign_map, camera, gt, np.random.default_rng(3))
-    sim = TelemetrySimSettings(clock_offset_s=OFFSET_S)
+    sim = TelemetrySimSettings(clock_offset_s=OFFSET_S, gimbal_rate_hz=10.0)
     tel, tel_truth = simulate_telemetry(truth, sign_map, np.random.default_rng(4), sim)
     settings = FusionSettings(
         cam_t_antenna_m=sim.cam_t_antenna_m, body_T_cam=tuple(map(tuple, default_body_T_cam()))
@@ -71,7 +72,7 @@ def _errors(poses: np.ndarray, gt) -> np.ndarray:
 
 def test_without_telemetry_the_vision_result_unchanged(flight):
     f = flight
-    for tel in (None, replace(f["tel"], gnss=None, imu=None)):
+    for tel in (None, replace(f["tel"], gnss=None, imu=None, gimbal=None)):
         r = fuse_trajectory(
             f["frames"],
             f["sign_map"],
@@ -110,6 +111,7 @@ def test_sign_free_stretch_bridged_by_imu_and_gnss(flight):
     assert np.all(np.isfinite(sig)) and np.all(sig < 1.0)
     assert np.mean(err_fused <= 3 * sig) > 0.9  # honest sigmas, not the CV prior's metres
     assert r.counts["imu_factors"] == len(gt) - 1
+    assert r.counts["gimbal_priors"] == len(gt)  # 10 Hz angles: one near every 5 Hz frame
 
 
 def test_clock_offset_recovered_and_fixed(flight):
@@ -159,6 +161,9 @@ def test_gimbal_angles_to_camera_axes():
     assert np.allclose(R[:, 1], [-1, 0, 0], atol=1e-12)  # image down = west
     R = world_R_cam_from_gimbal(0.0, 0.0, 0.0)  # level, north
     assert np.allclose(R[:, 2], [0, 1, 0]) and np.allclose(R[:, 0], [1, 0, 0])
+    for angles in ((-170.0, -30.0, 5.0), (45.0, 10.0, -20.0), (120.0, -85.0, 0.5)):
+        back = gimbal_from_world_R_cam(world_R_cam_from_gimbal(*angles))
+        assert np.allclose(back, angles, atol=1e-9)
 
 
 def test_estimate_trajectories_adds_fused_and_keeps_smoothed(flight):

@@ -9,7 +9,12 @@ import gtsam
 import numpy as np
 import pytest
 from signpose.estimator.camera import pinhole_camera
-from signpose.estimator.fusion import FusionSettings, _imu_params, _preintegrate
+from signpose.estimator.fusion import (
+    FusionSettings,
+    _imu_params,
+    _preintegrate,
+    gimbal_from_world_R_cam,
+)
 from signpose.maps.geodesy import GeoOrigin, enu_from_geodetic
 from signpose.maps.loader import bundled_map_path, load_map
 
@@ -86,7 +91,8 @@ def test_gnss_errors_bursts_and_same_noise_without_them(site):
 
 def test_csv_round_trip_through_the_reader(site, tmp_path):
     sign_map, flight = site
-    tel, _ = simulate_telemetry(flight, sign_map, np.random.default_rng(2), TelemetrySimSettings())
+    sim = TelemetrySimSettings(gimbal_rate_hz=5.0)
+    tel, _ = simulate_telemetry(flight, sign_map, np.random.default_rng(2), sim)
     path = tmp_path / "telemetry.csv"
     write_telemetry_csv(path, tel)
     back = read_telemetry_csv(path)
@@ -97,6 +103,13 @@ def test_csv_round_trip_through_the_reader(site, tmp_path):
     assert np.allclose(back.gnss.sigma_h_m, tel.gnss.sigma_h_m)
     assert np.allclose(back.imu.gyro_rad_s, tel.imu.gyro_rad_s, atol=1e-8)
     assert np.allclose(back.imu.accel_m_s2, tel.imu.accel_m_s2, atol=1e-7)
+    assert len(back.gimbal) == len(tel.gimbal) and not back.skipped
+    assert np.allclose(back.gimbal.yaw_deg, tel.gimbal.yaw_deg, atol=1e-4)
+    # The angles describe the camera: yaw within a few sigma of the truth.
+    R = flight.rotations(tel.gimbal.t_s - sim.clock_offset_s)
+    yaw_true = np.array([gimbal_from_world_R_cam(r)[0] for r in R])
+    d = (tel.gimbal.yaw_deg - yaw_true + 180.0) % 360.0 - 180.0
+    assert 1.0 < np.std(d) < 3.0 and abs(np.mean(d)) < 1.0
 
 
 def test_flight_has_ten_seconds_without_signs(site):

@@ -28,9 +28,16 @@ from pathlib import Path
 import numpy as np
 
 from signpose.core.fileio import atomic_write
-from signpose.estimator.telemetry import GnssFixes, ImuSamples, Telemetry
+from signpose.estimator.fusion import gimbal_from_world_R_cam
+from signpose.estimator.telemetry import GimbalAngles, GnssFixes, ImuSamples, Telemetry
 from signpose.estimator.trajectory import Trajectory
-from signpose.io.telemetry_csv import GNSS_COLUMNS, IMU_COLUMNS, SIGMA_COLUMNS, TIME_COLUMN
+from signpose.io.telemetry_csv import (
+    GIMBAL_COLUMNS,
+    GNSS_COLUMNS,
+    IMU_COLUMNS,
+    SIGMA_COLUMNS,
+    TIME_COLUMN,
+)
 from signpose.maps.geodesy import geodetic_from_enu
 from signpose.maps.loader import SignMap
 from signpose.sim.trajectories import site_frame
@@ -78,6 +85,8 @@ class TelemetrySimSettings:
             [rad/s^2/sqrt(Hz)], [m/s^3/sqrt(Hz)].
         gyro_bias0 / accel_bias0: standard deviation of the turn-on biases.
         cam_t_antenna_m: GNSS antenna in the camera frame [m].
+        gimbal_rate_hz: gimbal angle rate [Hz] (0: no gimbal stream).
+        gimbal_sigma_deg: (yaw, pitch, roll) noise of the reported angles [deg].
         body_T_cam: (4, 4) camera in the IMU body, or None for ``default_body_T_cam``.
     """
 
@@ -102,6 +111,8 @@ class TelemetrySimSettings:
     gyro_bias0: float = 2e-3
     accel_bias0: float = 0.05
     cam_t_antenna_m: tuple[float, float, float] = (0.0, -0.25, -0.10)
+    gimbal_rate_hz: float = 0.0
+    gimbal_sigma_deg: tuple[float, float, float] = (2.0, 0.5, 0.5)
     body_T_cam: np.ndarray | None = field(default=None, compare=False)
 
 
@@ -368,7 +379,22 @@ def simulate_telemetry(
     )
     imu, gb, ab = _simulate_imu(flight, r_imu, t0, t1, body_T_cam, s)
     truth = SimTelemetryTruth(tg, antenna, err, burst, gb, ab, float(s.clock_offset_s))
-    return Telemetry(source="<simulated>", gnss=gnss, imu=imu), truth
+    gimbal = None
+    if s.gimbal_rate_hz > 0:
+        gimbal = _simulate_gimbal(flight, rng.spawn(1)[0], t0, t1, s)
+    return Telemetry(source="<simulated>", gnss=gnss, imu=imu, gimbal=gimbal), truth
+
+
+def _simulate_gimbal(
+    flight: FlightTruth, rng: np.random.Generator, t0: float, t1: float, s: TelemetrySimSettings
+) -> GimbalAngles:
+    """The camera's attitude as DJI gimbal angles with noise, over telemetry times [t0, t1]."""
+    t = np.arange(math.ceil(t0 * s.gimbal_rate_hz), math.floor(t1 * s.gimbal_rate_hz) + 1)
+    t = t / s.gimbal_rate_hz
+    angles = np.array([gimbal_from_world_R_cam(R) for R in flight.rotations(t - s.clock_offset_s)])
+    angles = angles + rng.normal(0.0, 1.0, angles.shape) * np.asarray(s.gimbal_sigma_deg)
+    yaw = (angles[:, 0] + 180.0) % 360.0 - 180.0
+    return GimbalAngles(t_s=t, yaw_deg=yaw, pitch_deg=angles[:, 1], roll_deg=angles[:, 2])
 
 
 def _simulate_imu(
@@ -395,35 +421,40 @@ def _simulate_imu(
     return ImuSamples(t_s=ti, gyro_rad_s=gyro, accel_m_s2=accel), gb, ab
 
 
-def write_telemetry_csv(path: str | Path, telemetry: Telemetry) -> None:
-    """Write GNSS fixes and IMU samples as a telemetry CSV (``signpose.io.telemetry_csv``).
+def _csv_rows(telemetry: Telemetry) -> list[tuple[float, list[str]]]:
+    """(time, cells of the GNSS, IMU and gimbal groups) per sample, empty cells elsewhere."""
+    widths = (len(GNSS_COLUMNS) + len(SIGMA_COLUMNS), len(IMU_COLUMNS), len(GIMBAL_COLUMNS))
+    rows: list[tuple[float, list[str]]] = []
 
-    One row per sample in time order; a GNSS row leaves the IMU cells empty
-    and the other way round.
-    """
-    empty_imu = "," * len(IMU_COLUMNS)
-    empty_gnss = "," * (len(GNSS_COLUMNS) + len(SIGMA_COLUMNS))
-    rows: list[tuple[float, str]] = []
+    def add(t: float, group: int, cells: list[str]) -> None:
+        out = [f"{t:.6f}"]
+        for g, w in enumerate(widths):
+            out += cells if g == group else [""] * w
+        rows.append((t, out))
+
     g = telemetry.gnss
-    if g is not None:
-        for k in range(len(g)):
-            line = (
-                f"{g.t_s[k]:.6f},{g.lat_deg[k]:.10f},{g.lon_deg[k]:.10f},{g.height_m[k]:.4f},"
-                f"{g.sigma_h_m[k]:.3f},{g.sigma_v_m[k]:.3f}{empty_imu}"
-            )
-            rows.append((float(g.t_s[k]), line))
+    for k in range(len(g) if g is not None else 0):
+        cells = [f"{g.lat_deg[k]:.10f}", f"{g.lon_deg[k]:.10f}", f"{g.height_m[k]:.4f}"]
+        add(float(g.t_s[k]), 0, cells + [f"{g.sigma_h_m[k]:.3f}", f"{g.sigma_v_m[k]:.3f}"])
     m = telemetry.imu
-    if m is not None:
-        for k in range(len(m)):
-            w, a = m.gyro_rad_s[k], m.accel_m_s2[k]
-            line = (
-                f"{m.t_s[k]:.6f}{empty_gnss},{w[0]:.8f},{w[1]:.8f},{w[2]:.8f},"
-                f"{a[0]:.7f},{a[1]:.7f},{a[2]:.7f}"
-            )
-            rows.append((float(m.t_s[k]), line))
+    for k in range(len(m) if m is not None else 0):
+        cells = [f"{x:.8f}" for x in m.gyro_rad_s[k]] + [f"{x:.7f}" for x in m.accel_m_s2[k]]
+        add(float(m.t_s[k]), 1, cells)
+    a = telemetry.gimbal
+    for k in range(len(a) if a is not None else 0):
+        add(float(a.t_s[k]), 2, [f"{x:.4f}" for x in (a.yaw_deg[k], a.pitch_deg[k], a.roll_deg[k])])
     rows.sort(key=lambda r: r[0])
-    header = ",".join((TIME_COLUMN, *GNSS_COLUMNS, *SIGMA_COLUMNS, *IMU_COLUMNS))
+    return rows
+
+
+def write_telemetry_csv(path: str | Path, telemetry: Telemetry) -> None:
+    """Write the telemetry as a CSV ``signpose.io.telemetry_csv`` reads.
+
+    One row per GNSS fix, IMU sample or gimbal sample, in time order; the
+    other streams' cells of a row are empty.
+    """
+    header = (TIME_COLUMN, *GNSS_COLUMNS, *SIGMA_COLUMNS, *IMU_COLUMNS, *GIMBAL_COLUMNS)
     with atomic_write(path) as f:
-        f.write(CSV_MAGIC + "\n" + header + "\n")
-        for _, line in rows:
-            f.write(line + "\n")
+        f.write(CSV_MAGIC + "\n" + ",".join(header) + "\n")
+        for _, cells in _csv_rows(telemetry):
+            f.write(",".join(cells) + "\n")
