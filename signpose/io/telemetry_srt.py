@@ -128,16 +128,16 @@ def read_srt(path: str | Path, video_start_s: float = 0.0) -> Telemetry:
     rows, gimbal_rows = [], []
     for start, body in cues:
         fields = subtitle_fields(body)
+        t = video_start_s + start
+        angles = [_number(fields, keys) for keys in _GIMBAL_KEYS.values()]
+        if all(a is not None for a in angles):  # the gimbal's reading needs no fix
+            gimbal_rows.append((t, *angles))
         lat, lon = _number(fields, _LAT_KEYS), _number(fields, _LON_KEYS)
         height = _number(fields, _HEIGHT_KEYS)
         if lat is None or lon is None or height is None:
             count(skipped, "garbled")
             continue
-        t = video_start_s + start
         rows.append((t, lat, lon, height))
-        angles = [_number(fields, keys) for keys in _GIMBAL_KEYS.values()]
-        if all(a is not None for a in angles):
-            gimbal_rows.append((t, *angles))
     a = np.array(rows, dtype=float).reshape(-1, 4)
     n = len(a)
     gnss = gnss_fixes(
