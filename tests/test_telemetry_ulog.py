@@ -159,3 +159,12 @@ def test_a_ulog_whose_fixes_are_all_2d_and_a_broken_file_are_one_line(tmp_path):
     with pytest.raises(InputError) as exc:
         read_telemetry(bad)
     assert str(exc.value).startswith(str(bad)) and "\n" not in str(exc.value)
+
+
+def test_an_msl_altitude_only_gets_a_large_vertical_sigma(tmp_path):
+    fields = [f for f in GPS_FIELDS if f[1] != "alt_ellipsoid"]
+    rows = [r[:5] + r[6:] for r in _gps_rows(4)]  # without alt_ellipsoid
+    t = read_ulog(write_ulog(tmp_path / "msl.ulg", {"vehicle_gps_position": (fields, rows)}))
+    np.testing.assert_allclose(t.gnss.height_m, 490.0)  # MSL, as logged
+    np.testing.assert_allclose(t.gnss.sigma_v_m, 30.0)  # the geoid is tens of metres away
+    np.testing.assert_allclose(t.gnss.sigma_h_m, 0.8, rtol=1e-6)

@@ -18,7 +18,9 @@ Time: the subtitle's start time (``00:00:01,033 --> ...``) is the frame's time
 in the video, so ``t_s = video_start_s + start``: the SRT is on the video's
 own clock (no offset, unless the recorder's is off). Height: ``abs_alt`` (or
 the older ``altitude``) is taken as the ellipsoidal height; DJI does not say
-which datum it uses, so its vertical sigma is large (``SIGMA_V_M``).
+which datum it uses (often mean sea level: tens of metres from the ellipsoid),
+so its vertical sigma (``SIGMA_V_M``, 30 m) lets it barely weigh against the
+signs and keeps a geoid-sized offset from reading as an outlier.
 ``rel_alt`` (above take-off) alone is not a height and such a subtitle is
 ``garbled``. A subtitle without a readable latitude, longitude and height is
 skipped and counted (``garbled``); one at (0, 0) is ``no_fix``.
@@ -37,7 +39,7 @@ from signpose.io.telemetry_build import count, gimbal_angles, gnss_fixes
 
 MAX_SRT_BYTES = 512 << 20
 SIGMA_H_M = 2.0
-SIGMA_V_M = 10.0
+SIGMA_V_M = 30.0
 _TIMECODE = re.compile(r"^\s*(\d+):(\d{1,2}):(\d{1,2})[,.](\d{1,3})\s*-->")
 _GROUP = re.compile(r"\[([^\[\]]*)\]")
 _PAIR = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\s*:\s*([^\s,\]]+)")

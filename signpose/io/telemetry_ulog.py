@@ -5,7 +5,9 @@ Topics read (the first instance of each):
 * GNSS: ``sensor_gps`` (PX4 >= 1.14) or ``vehicle_gps_position`` (older):
   ``latitude_deg``/``longitude_deg`` (or ``lat``/``lon`` in 1e-7 deg),
   ``altitude_ellipsoid_m`` (or ``alt_ellipsoid`` [mm]; the MSL ``alt`` only
-  where neither is logged), ``eph``/``epv`` as the sigmas, ``fix_type`` (< 3:
+  where neither is logged, with a vertical sigma of at least ``MSL_SIGMA_V_M``:
+  the geoid is tens of metres from the ellipsoid), ``eph``/``epv`` as the
+  sigmas, ``fix_type`` (< 3:
   no 3D fix, skipped as ``no_fix``).
 * IMU: ``sensor_combined`` (``gyro_rad``, ``accelerometer_m_s2``), else
   ``vehicle_imu`` (``delta_angle`` / ``delta_velocity`` over their ``_dt``).
@@ -32,6 +34,7 @@ from signpose.io.telemetry_build import count, gnss_fixes, imu_samples
 GNSS_TOPICS = ("sensor_gps", "vehicle_gps_position")
 IMU_TOPICS = ("sensor_combined", "vehicle_imu")
 MIN_3D_FIX = 3
+MSL_SIGMA_V_M = 30.0
 FRD_TO_FLU = np.array([1.0, -1.0, -1.0])
 
 
@@ -69,7 +72,8 @@ def _gnss(p: Path, data: dict, skipped: dict[str, int]):
     h = _first(data, "altitude_ellipsoid_m")
     if h is None:
         h = _first(data, "alt_ellipsoid", scale=1e-3)
-    if h is None:
+    msl = h is None
+    if msl:
         h = (
             _first(data, "altitude_msl_m")
             if "altitude_msl_m" in data
@@ -81,6 +85,8 @@ def _gnss(p: Path, data: dict, skipped: dict[str, int]):
     keep = fix >= MIN_3D_FIX if fix is not None else np.ones(len(t), dtype=bool)
     count(skipped, "no_fix", int((~keep).sum()))
     eph, epv = _first(data, "eph"), _first(data, "epv")
+    if msl and h is not None:  # above the geoid, not the ellipsoid: weigh the height little
+        epv = np.maximum(epv if epv is not None else 0.0, MSL_SIGMA_V_M) * np.ones(len(t))
     gnss = gnss_fixes(
         t[keep],
         lat[keep],
