@@ -58,6 +58,23 @@ def _gnss_csv(path: Path, flight, shift_s: float = 0.0, seed: int = 0) -> Path:
     return path
 
 
+def _srt(path: Path, flight) -> Path:
+    """The DJI sidecar of the flight's video: one subtitle per frame, the current layout."""
+    gt = read_tum(flight.groundtruth_path)
+    lat, lon, h = geodetic_from_enu(GeoOrigin(**ORIGIN), gt.world_t_cam)
+    cues = []
+    for i, t in enumerate(gt.stamps_s - gt.stamps_s[0]):
+        ms = int(round(t * 1000))
+        start, end = f"00:00:{ms // 1000:02d},{ms % 1000:03d}", f"00:00:{(ms + 33) // 1000:02d}"
+        cues.append(
+            f"{i + 1}\n{start} --> {end},{(ms + 33) % 1000:03d}\n"
+            f"[latitude: {lat[i]:.7f}] [longitude: {lon[i]:.7f}] "
+            f"[rel_alt: 30.0 abs_alt: {h[i]:.3f}]\n"
+        )
+    path.write_text("\n".join(cues))
+    return path
+
+
 def _run(flight, sign_map_path: Path, out: Path, request: TelemetryRequest | None, full=True):
     settings = pipeline.RunSettings(telemetry=request, plots=full, mcap=full)
     return pipeline.run(
@@ -204,10 +221,11 @@ def test_the_input_log_itself_holds_the_telemetry_and_estimate_fuses_it_too(
     assert "fused" in result.coverage and result.notes[0] == f"telemetry {log}: 15 GNSS fixes"
     out = tmp_path / "est"
     args = ["estimate", run_out / "observations.jsonl", "--map", site["anchored"]]
-    args += ["--camera", flight.camera_path, "--out", out, "--telemetry", tel]
+    srt = _srt(tmp_path / "DJI_0001.SRT", flight)  # on the video's clock
+    args += ["--camera", flight.camera_path, "--out", out, "--telemetry", srt]
     assert main([str(a) for a in args] + ["--telemetry-offset", "0", "--no-sigmas"]) == 0
     printed = capsys.readouterr().out
-    assert f"telemetry {tel}: 15 GNSS fixes" in printed and "fused: clock offset" in printed
+    assert f"telemetry {srt}: 30 GNSS fixes" in printed and "fused: clock offset" in printed
     assert (out / "fused.tum").is_file() and (out / "trajectory_wgs84.csv").is_file()
     header = (out / "trajectory_wgs84.csv").read_text().splitlines()[0]
     assert header.startswith("t_s,lat_deg,lon_deg,height_m")
