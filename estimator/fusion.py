@@ -787,6 +787,13 @@ def _usable(telemetry: Telemetry | None, s: FusionSettings) -> bool:
     return any(use and x is not None and len(x) > 0 for use, x in streams)
 
 
+def _unestimated_clock(s: FusionSettings) -> ClockOffset:
+    """The offset when nothing is fused: the given one, else 0 with an unknown sigma."""
+    if s.clock_offset_s is not None:
+        return ClockOffset(float(s.clock_offset_s), 0.0, "fixed")
+    return ClockOffset(0.0, float("nan"), "none")
+
+
 def _vision_only(vision: SmootherResult, kept, camera, stamps, s: FusionSettings, t0: float):
     """The vision result as a FusionResult (no telemetry: nothing fused)."""
     n = len(vision.world_T_cam)
@@ -805,7 +812,7 @@ def _vision_only(vision: SmootherResult, kept, camera, stamps, s: FusionSettings
         gnss_drift_m=np.zeros((0, 3)),
         gnss_used=np.zeros(0, np.int64),
         gnss_outlier=np.zeros(0, bool),
-        clock=ClockOffset(float("nan"), float("nan"), "none"),
+        clock=_unestimated_clock(s),
         counts={"frames": n},
         landmarks_world=vision.landmarks_world.copy(),
         seconds=time.perf_counter() - t0,

@@ -85,6 +85,7 @@ def test_without_telemetry_the_vision_result_unchanged(flight):
         assert np.array_equal(r.world_T_cam, f["vision"].world_T_cam)
         assert np.array_equal(r.sigma_xyz, f["vision"].sigma_xyz, equal_nan=True)
         assert r.counts == {"frames": len(f["frames"])}
+        assert (r.clock.offset_s, r.clock.source) == (0.0, "none")  # never a NaN offset
 
 
 def test_multipath_bursts_rejected(flight):
