@@ -787,6 +787,7 @@ def batch_covariances(
     values: gtsam.Values,
     n_frames: int,
     ordering: gtsam.Ordering | None = None,
+    per_pose: bool = False,
 ) -> np.ndarray:
     """(N, 6, 6) marginal covariance of every pose ([rotation, translation], camera frame).
 
@@ -797,13 +798,14 @@ def batch_covariances(
     frame are inverted as one dense block). Identical to gtsam.Marginals to
     1e-9 (tests/test_marginals_fast.py); one Bayes-tree ``marginalCovariance``
     per pose cost 3.2 ms per pose at 1,000 frames. Without an ordering, or
-    when the tail is not small, the Bayes tree is asked pose by pose. NaN
+    when the tail is not small (or ``per_pose``: scripts/bench_estimator.py
+    compares the two), the Bayes tree is asked pose by pose, newest first. NaN
     when the elimination fails (a warning is logged).
     """
     cov = np.full((n_frames, 6, 6), np.nan)
     try:
         linear = graph.linearize(values)
-        if ordering is not None:
+        if ordering is not None and not per_pose:
             fast = _chain_covariances(linear, ordering, n_frames)
             if fast is not None:
                 return fast
