@@ -69,6 +69,9 @@ _HIDING_HALF_WIDTH = 0.055
 # A print-black "band" wider than this is dark background, not a member
 # (pylon members are up to about a third of a sign's diameter) [diameters].
 _MAX_BAR_HALF_WIDTH = 0.2
+# Least half width [diameters] of a bar seen at one rim crossing only: one
+# that hides a coded slot (a narrower one leaves white inside it).
+_SINGLE_MIN_HALF = 0.055
 # Points along a chord checked for darkness, and the chord's inner extent.
 _N_CHORD = 17
 _CHORD_T = np.linspace(0.0, 1.0, _N_CHORD)
@@ -205,18 +208,26 @@ def _rim_runs(
 
 
 def _looks_like_a_bar(
-    gray: np.ndarray, image_H_sign: np.ndarray, band: Band, black: float, contrast: float
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    band: Band,
+    black: float,
+    contrast: float,
+    both_ends: bool = True,
 ) -> bool:
-    """Beyond both rim crossings the band stays dark between lighter sides.
+    """Beyond both rim crossings (or beyond ``p0`` only) the band stays dark
+    between lighter sides.
 
-    Points outside the crop show nothing and do not count against it.
+    Points outside the crop show nothing and do not count against it, but
+    with one end only, that end must be seen.
     """
     d = band.p1 - band.p0
     d = d / max(float(np.hypot(*d)), 1e-12)
     n = np.array([-d[1], d[0]])
     side = band.half_width + _BAR_SIDE_GAP
     pts = []
-    for end, out in ((band.p0, -d), (band.p1, d)):
+    ends = ((band.p0, -d), (band.p1, d)) if both_ends else ((band.p0, -d),)
+    for end, out in ends:
         for t in _BAR_BEYOND:
             q = end + t * out
             pts += [q, q + side * n, q - side * n]
@@ -225,9 +236,125 @@ def _looks_like_a_bar(
     seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     frac = ((_sample(gray, uv) - black) / contrast).reshape(-1, 3)
     seen = seen.reshape(-1, 3).all(axis=1)
+    if not both_ends and not seen.all():
+        return False
     centre, left, right = frac[:, 0], frac[:, 1], frac[:, 2]
-    edged = (centre <= _DARK_FRAC) & (np.maximum(left, right) - centre >= _BAR_EDGE_STEP)
+    lighter = np.maximum(left, right) if both_ends else np.minimum(left, right)
+    edged = (centre <= _DARK_FRAC) & (lighter - centre >= _BAR_EDGE_STEP)
     return bool((edged | ~seen).all())
+
+
+def bars_through(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    black: float,
+    white: float,
+    targets: np.ndarray,
+) -> list[Band]:
+    """Bars seen at one rim crossing only that would run over ``targets``.
+
+    A member as black as the print laid over a white slot reads black, and
+    where the background beyond the rim is as dark as the bar too (a dark
+    photograph, another member) only one of its two rim crossings shows as a
+    short dark run: ``dark_bands`` finds no pair. Here every short rim run is
+    joined to each target (a black-read slot's centre [diameters], (T, 2))
+    by a straight chord across the disc; it is a bar over that slot when the
+    chord is dark all the way, the ring is dark where the chord leaves the
+    disc again, and beyond the run the bar shows its straight edges along
+    the chord's direction. The bands returned are not ``in_front`` (a bar
+    behind looks the same): they only erase the black slots they cross.
+    """
+    if len(targets) == 0:
+        return []
+    contrast = max(white - black, 1e-6)
+    runs = [
+        r
+        for r in _rim_runs(gray, image_H_sign, black, white)
+        if _SINGLE_MIN_HALF <= 0.5 * math.sin(r[1]) <= _MAX_BAR_HALF_WIDTH
+    ]
+    if not runs:
+        return []
+    # Every (run, target) chord at once: ends a (the run) and b on the rim.
+    ang = np.array([r[0] for r in runs])
+    a = np.repeat(0.5 * np.stack([np.cos(ang), np.sin(ang)], axis=1), len(targets), axis=0)
+    c = np.tile(np.asarray(targets, float), (len(runs), 1))
+    u = c - a
+    u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-9)[:, None]
+    b = a - 2.0 * np.einsum("ij,ij->i", a, u)[:, None] * u
+    chord = a[:, None] + _CHORD_T[None, :, None] * (b - a)[:, None]  # (K, _N_CHORD, 2)
+    keep = np.hypot(chord[..., 0], chord[..., 1]) < _CHORD_INNER
+    ring = (b / 0.5)[:, None, :] * np.asarray(_RING_RADII)[None, :, None]  # (K, 2, 2)
+    pts = np.concatenate([chord, ring], axis=1)
+    uv = _project(image_H_sign, pts.reshape(-1, 2))
+    h, w = gray.shape
+    seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
+    frac = ((_sample(gray, uv) - black) / contrast).reshape(len(a), -1)
+    seen = seen.reshape(len(a), -1)
+    lit = frac > _DARK_FRAC
+    ok = ~(lit[:, :_N_CHORD] & keep).any(axis=1) & ~(lit & seen)[:, _N_CHORD:].any(axis=1)
+    out = []
+    for k in np.flatnonzero(ok).tolist():
+        # The run is the bar's footprint on the ring: an oblique chord's is
+        # wider than the bar by 1 / cos(its angle to the radius).
+        slant = abs(float(a[k] @ u[k])) / 0.5
+        half = 0.5 * math.sin(runs[k // len(targets)][1]) * slant
+        if half < _SINGLE_MIN_HALF:
+            continue
+        band = Band(a[k], b[k], half, in_front=False)
+        level_in = _median(frac[k, :_N_CHORD][keep[k]].tolist())
+        if _bar_beyond(gray, image_H_sign, band, black, contrast, level_in):
+            out.append(band)
+    return out
+
+
+# Distances beyond the rim [diameters] where a bar seen at one end only is
+# checked, and the share of its half width sampled inside it.
+_SINGLE_BEYOND = (0.06, 0.12, 0.18)
+_SINGLE_BODY = 0.5
+# Side points closer to the centre than this [diameters] lie on the disc.
+_OFF_DISC = 0.53
+
+
+def _bar_beyond(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    band: Band,
+    black: float,
+    contrast: float,
+    level_in: float,
+) -> bool:
+    """Beyond ``band.p0`` the bar runs on along the chord: at each distance its
+    centre and both halves are dark and both sides lighter (the nearest seen;
+    farther ones outside the crop do not count), and its gray level there is
+    the chord's inside the disc, ``level_in`` (white fraction): one object in
+    front. A bar behind shows its own level outside and the print's inside
+    (a pylon's lattice behind a sign, darker or lighter than the print)."""
+    d = band.p1 - band.p0
+    d = d / max(float(np.hypot(*d)), 1e-12)
+    n = np.array([-d[1], d[0]])
+    side = band.half_width + _BAR_SIDE_GAP
+    body = _SINGLE_BODY * band.half_width
+    offsets = (0.0, body, -body, side, -side)
+    pts = [band.p0 - t * d + o * n for t in _SINGLE_BEYOND for o in offsets]
+    uv = _project(image_H_sign, np.asarray(pts))
+    h, w = gray.shape
+    seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
+    seen = seen.reshape(-1, 5).all(axis=1)
+    # A side point on the disc (an oblique bar's acute side near the rim)
+    # shows the print's black, not the bar's surroundings: left out.
+    pts = np.asarray(pts).reshape(-1, 5, 2)
+    off_disc = np.hypot(pts[..., 0], pts[..., 1])[:, 3:] > _OFF_DISC
+    frac = ((_sample(gray, uv) - black) / contrast).reshape(-1, 5)
+    inner = frac[:, :3].max(axis=1)
+    lower = np.where(off_disc, frac[:, 3:], np.inf).min(axis=1)
+    evidence = seen & off_disc.any(axis=1)
+    if not evidence[0]:
+        return False
+    edged = (inner <= _DARK_FRAC) & (lower - inner >= _BAR_EDGE_STEP)
+    if not (edged | ~evidence).all():
+        return False
+    level_out = _median(frac[evidence, :3].ravel().tolist())
+    return abs(level_out - level_in) < _BEHIND_GAP
 
 
 def dark_bands(
