@@ -166,6 +166,11 @@ class DetectorSettings:
             size (plus 8 px) on each side before the cascade searches it.
         fast_scale: (lo, hi) window sizes searched around a candidate,
             relative to its blob's longest side.
+        fast_scale_dark: ``fast_scale`` in frames with a dark mass
+            (``dark_threshold``: a photograph's shadows, a black sky), where
+            the dark background joins the signs' blobs and their sizes say
+            less (scripts/eval_detector.py --photo-flights: detection of
+            the decodable signs 80 -> 94 % on four photo flights, 0 wrong).
         fast_small_min_px: smallest sign fast mode looks for (windows below
             24 px via magnified candidate areas); 0 disables.
         track_margin: tracking ROI half-side, in predicted diameters, beyond
@@ -199,6 +204,7 @@ class DetectorSettings:
     fast_min_range: int = 50
     fast_roi_grow: float = 0.6
     fast_scale: tuple[float, float] = (0.6, 1.9)
+    fast_scale_dark: tuple[float, float] = (0.4, 2.5)
     fast_small_min_px: int = 16
     track_margin: float = 0.4
     track_anchor_margin: float = 3.0
@@ -469,6 +475,10 @@ class SignDetector:
         return self._fast_raw(gray)
 
     def candidate_rois(self, gray: np.ndarray) -> list[tuple[int, int, int, int, float]]:
+        """Fast mode's candidates (see ``_candidates``)."""
+        return self._candidates(gray)[0]
+
+    def _candidates(self, gray: np.ndarray) -> tuple[list[tuple[int, int, int, int, float]], bool]:
         """Fast mode's candidates: where a sign's black disc can be, and its size.
 
         On a half-size frame, pixels whose 3 x 3 minimum is among the darkest
@@ -483,7 +493,8 @@ class SignDetector:
         Returns:
             (x, y, w, h, blob_px) per candidate: the region to search [px]
             (the blob's box grown by ``fast_roi_grow`` of its size + 8 px) and
-            the blob's longest side [px], which sets the window sizes.
+            the blob's longest side [px], which sets the window sizes; and
+            whether the frame has a dark mass (``dark_threshold``).
         """
         s = self.settings
         h, w = gray.shape
@@ -514,7 +525,7 @@ class SignDetector:
             black_thr = thr - s.fast_dark_margin + s.fast_black_margin
             for box in self._grey_discs(low, half, high, black_thr):
                 self._add_roi(rois, box, (h, w))
-        return rois
+        return rois, dark_mass
 
     def _add_roi(
         self,
@@ -600,9 +611,12 @@ class SignDetector:
         s = self.settings
         h, w = gray.shape
         max_px = max(WINDOW_PX, s.max_size_frac * min(h, w))
-        lo_f, hi_f = s.fast_scale
+        rois, dark_mass = self._candidates(gray)
+        # Where dark background joins the blobs, a blob's size says less about
+        # the sign's: a wider range of window sizes.
+        lo_f, hi_f = s.fast_scale_dark if dark_mass else s.fast_scale
         parts = [np.zeros((0, 4))]
-        for x0, y0, rw, rh, size in self.candidate_rois(gray):
+        for x0, y0, rw, rh, size in rois:
             roi = gray[y0 : y0 + rh, x0 : x0 + rw]
             lo, hi = lo_f * size, min(hi_f * size, max_px)
             if hi >= WINDOW_PX and min(rw, rh) >= WINDOW_PX:
