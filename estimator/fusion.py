@@ -94,7 +94,8 @@ class FusionSettings:
     """What the fusion uses and how it weighs it.
 
     Attributes:
-        use_vision / use_gnss / use_imu / use_gimbal: which sensors enter the graph.
+        use_gnss / use_imu / use_gimbal: which of the drone's sensors join the
+            vision factors.
         cam_t_antenna_m: the GNSS antenna in the camera frame [m] (lever arm).
         body_T_cam: (4, 4) the camera's pose in the IMU body (FLU) [m].
         gnss_kernel: ``"tukey"`` (redescending, the default), ``"geman-mcclure"``
@@ -122,7 +123,6 @@ class FusionSettings:
         lm_max_iterations: Levenberg-Marquardt cap per stage.
     """
 
-    use_vision: bool = True
     use_gnss: bool = True
     use_imu: bool = True
     use_gimbal: bool = True
@@ -628,8 +628,6 @@ def vision_solve(
 
 def _inliers(meas, vision: SmootherResult, camera: CameraModel, s: FusionSettings):
     """The measurements the vision solution keeps (whitened residual within Tukey's k)."""
-    if not s.use_vision:
-        return meas.subset(np.zeros(len(meas.frame), bool))
     if len(meas.frame) == 0:
         return meas
     res = residuals_px(meas, vision, camera) / meas.sigma_px
