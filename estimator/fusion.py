@@ -792,8 +792,10 @@ def _unestimated_clock(s: FusionSettings) -> ClockOffset:
     return ClockOffset(0.0, float("nan"), "none")
 
 
-def _vision_only(vision: SmootherResult, kept, camera, stamps, s: FusionSettings, t0: float):
-    """The vision result as a FusionResult (no telemetry: nothing fused)."""
+def _vision_only(
+    vision: SmootherResult, kept, camera, stamps, s: FusionSettings, t0: float, failed: int = 0
+):
+    """The vision result as a FusionResult (no telemetry, or the fused solve failed)."""
     n = len(vision.world_T_cam)
     return FusionResult(
         world_T_cam=vision.world_T_cam.copy(),
@@ -811,7 +813,7 @@ def _vision_only(vision: SmootherResult, kept, camera, stamps, s: FusionSettings
         gnss_used=np.zeros(0, np.int64),
         gnss_outlier=np.zeros(0, bool),
         clock=_unestimated_clock(s),
-        counts={"frames": n},
+        counts={"frames": n, **({"failed": failed} if failed else {})},
         landmarks_world=vision.landmarks_world.copy(),
         seconds=time.perf_counter() - t0,
     )
@@ -913,8 +915,12 @@ def fuse_trajectory(
     poses, vel = _initial(vision.world_T_cam, _observed_and_signs(kept)[0], stamps, p.pims)
     # A redescending kernel needs a good start: a Huber solve first.
     kernels = [s.gnss_kernel] if s.gnss_kernel in ("huber", "none") else ["huber", s.gnss_kernel]
-    for kernel in kernels if p.fixes is not None else kernels[-1:]:
-        g = _build(p, poses, vel, kernel)
-        result = _solve(g, _ordering(p, len(stamps)), s)
-        poses, vel = _extract(result, len(stamps))
+    try:
+        for kernel in kernels if p.fixes is not None else kernels[-1:]:
+            g = _build(p, poses, vel, kernel)
+            result = _solve(g, _ordering(p, len(stamps)), s)
+            poses, vel = _extract(result, len(stamps))
+    except RuntimeError as exc:  # gtsam: an indeterminant system; the flight goes on
+        log.warning("fusion failed (%s); the fused poses are the vision-only ones", exc)
+        return _vision_only(vision, kept, camera, stamps, s, t0, failed=1)
     return _fused_result(p, g, result, clock, camera, t0)

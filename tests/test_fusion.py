@@ -9,6 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative21, numericalDerivative22
+from signpose.estimator import fusion as fusion_module
 from signpose.estimator.camera import pinhole_camera
 from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
 from signpose.estimator.fusion import (
@@ -206,3 +207,22 @@ def test_gnss_without_map_origin_is_one_input_error(flight):
             replace(f["settings"], clock_offset_s=OFFSET_S),
             vision_result=f["vision"],
         )
+
+
+def test_a_failed_fused_solve_leaves_the_vision_result(flight, monkeypatch):
+    def indeterminant(*args):
+        raise RuntimeError("Indeterminant linear system detected")
+
+    monkeypatch.setattr(fusion_module, "_solve", indeterminant)
+    f = flight
+    r = fuse_trajectory(
+        f["frames"],
+        f["sign_map"],
+        f["camera"],
+        f["gt"].stamps_s,
+        f["tel"],
+        replace(f["settings"], clock_offset_s=OFFSET_S),
+        vision_result=f["vision"],
+    )
+    assert np.array_equal(r.world_T_cam, f["vision"].world_T_cam)
+    assert r.counts["failed"] == 1 and r.clock.offset_s == OFFSET_S

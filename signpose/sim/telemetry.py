@@ -137,6 +137,8 @@ class FlightTruth:
     freqs: np.ndarray
     phases: np.ndarray
     wobble_rad: float
+    side: float = 1.0  # +1: away to the site's right (turning right), -1: to its left
+    reach_m: float = 14.0  # how far along the line the UAV flies away [m]
 
     def position(self, t: np.ndarray) -> np.ndarray:
         """(N, 3) camera centres at video times ``t`` (N,) [s]."""
@@ -144,7 +146,7 @@ class FlightTruth:
         a, b = self.away_s
         u = np.clip((t - a) / (b - a), 0.0, 1.0)
         go = 0.5 - 0.5 * np.cos(2 * np.pi * u)  # 0 -> 1 -> 0 over the away stretch
-        lateral = 2.0 * np.sin(2 * np.pi * t / 17.0) + 14.0 * go
+        lateral = 2.0 * np.sin(2 * np.pi * t / 17.0) + self.side * self.reach_m * go
         back = self.distance_m + 1.0 * np.sin(2 * np.pi * t / 13.0) + 4.0 * go
         height = 1.2 * np.sin(2 * np.pi * t / 11.0 + 0.4) + 2.0 * go
         return (
@@ -161,7 +163,7 @@ class FlightTruth:
         rise = np.clip((np.asarray(t, float) - a) / turn, 0.0, 1.0)
         fall = np.clip((b - np.asarray(t, float)) / turn, 0.0, 1.0)
         smooth = lambda x: x * x * (3 - 2 * x)  # noqa: E731
-        return np.radians(110.0) * np.minimum(smooth(rise), smooth(fall))
+        return self.side * np.radians(110.0) * np.minimum(smooth(rise), smooth(fall))
 
     def rotations(self, t: np.ndarray) -> np.ndarray:
         """(N, 3, 3) world_R_cam at video times ``t`` (N,) [s]: looking at the
@@ -222,6 +224,9 @@ def away_and_back(
 ) -> FlightTruth:
     """A flight that looks at the signs, turns 110 deg away for ``away_s`` and comes back.
 
+    The seed draws the wobble's phases, the side the UAV turns and flies to
+    (along the line) and how far it goes (10-16 m).
+
     With the default 14 s away (2 s turns each way) about 10 s have no sign
     in view for a 60 deg lens.
     """
@@ -238,6 +243,8 @@ def away_and_back(
         freqs=rng.uniform(0.2, 1.5, size=(3, 3)),
         phases=rng.uniform(0, 2 * np.pi, size=(3, 3)),
         wobble_rad=math.radians(wobble_deg),
+        side=float(rng.choice([-1.0, 1.0])),
+        reach_m=float(rng.uniform(10.0, 16.0)),
     )
 
 
