@@ -166,15 +166,16 @@ def _sample_points() -> np.ndarray:
             for o in (-0.5, 0.5):
                 pts.append(c + s * (half_t + _EDGE_GAP) * tangential + o * half_r * radial)
                 pts.append(c + s * (half_r + _EDGE_GAP) * radial + o * half_t * tangential)
-    # Inside every coded slot, off its centre line radially: a black slot is
-    # black there too, where a thin bar along the slot leaves its white.
+    # Along the long edges of every coded slot, off its centre line: a black
+    # slot is the disc's black there too, where dirt or a bar laid along a
+    # white slot leaves the slot's white rim showing.
     for ang in _SLOT_ANGLES[1:]:
         radial = np.array([math.cos(ang), math.sin(ang)])
         tangential = np.array([math.sin(ang), -math.cos(ang)])
         c = _SLOT_RADIUS * radial
-        for s in (-1.0, 1.0):
+        for r in _INNER_RADIAL:
             for o in (-0.06, 0.0, 0.06):
-                pts.append(c + s * _INNER_RADIAL * radial + o * tangential)
+                pts.append(c + r * radial + o * tangential)
     return np.asarray(pts)
 
 
@@ -185,8 +186,8 @@ _CODED_HALF = (0.105, 0.08)
 _EDGE_GAP = 0.05
 _N_EDGE = 8
 _EDGE_CONTRAST = 0.5
-_INNER_RADIAL = 0.05
-_N_INNER = 6
+_INNER_RADIAL = (-0.09, -0.075, 0.075, 0.09)
+_N_INNER = 3 * len(_INNER_RADIAL)
 _N_OFFSETS = len(_OFFSETS)
 _N_SLOT_SAMPLES = (N_BITS + 1) * _N_OFFSETS
 _SAMPLES = _sample_points()
@@ -563,8 +564,8 @@ def _has_edges(frac: list[float], row: list[float], k: int) -> bool:
 
 
 def _black_inside(frac: list[float], k: int, settings: DecoderSettings) -> bool:
-    """Coded slot ``k`` (1..4), read black, is black off its centre line too
-    (a conductor laid along a white slot blackens the centre line only)."""
+    """Coded slot ``k`` (1..4), read black, is black along its long edges too
+    (dirt or a bar laid along a white slot darkens its middle only)."""
     start = _INNER_STARTS[k - 1]
     return max(frac[start : start + _N_INNER]) <= settings.max_black_frac + 0.1
 

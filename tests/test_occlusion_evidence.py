@@ -1,0 +1,102 @@
+"""Evidence for 1, 0 or erased in the decoder's slot reading (issue 11).
+
+Each test is one crop of scripts/independent_scene.py (the renderer that
+shares no drawing code with signpose.sim) that the decoder used to read as
+another code of the paper's map, and checks both sides: the decoder now
+refuses it, and with the one piece of evidence switched off it reads the
+wrong code again (so the test sees what it claims to).
+"""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from signpose.frontend import decoder, occlusion
+from signpose.frontend.decoder import DecodeReason, decode_roi
+from signpose.frontend.homography import apply_homography
+from signpose.frontend.sign import PAPER_CODES, slot_angle_rad
+
+from signpose.sim.crops import render_crop
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "independent_scene.py"
+
+
+@pytest.fixture(scope="module")
+def scene():
+    spec = importlib.util.spec_from_file_location("independent_scene_t", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its dataclasses look their module up
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_a_glare_spot_where_a_slot_is_black_is_not_read_white(scene, monkeypatch):
+    """1100 with a specular spot over black slot 3 was read 1110."""
+    s = scene.SceneSettings(
+        sign_px=86.0,
+        rotation_deg=254.7,
+        tilt_deg=7.5,
+        tilt_axis_deg=87.6,
+        focal_px=1600.0,
+        photo="rocket",
+        black_level=45.6,
+        white_level=204.6,
+        glare=121.6,
+        psf_sigma_px=0.5,
+        noise_sigma=2.8,
+        jpeg_quality=90,
+    )
+    crop = scene.render_scene_crop("1100", s, np.random.default_rng(2))
+    assert decode_roi(crop.image, PAPER_CODES).code in (None, "1100")
+    monkeypatch.setattr(decoder, "_EDGE_CONTRAST", -1.0)  # no edge test
+    assert decode_roi(crop.image, PAPER_CODES).code == "1110"
+
+
+def test_a_print_black_member_seen_at_one_rim_crossing_erases_the_slot(scene, monkeypatch):
+    """1100 with slot 2 under a member as black as the print, on a dark photograph
+    (one rim crossing shows): was read 1000."""
+    s = scene.SceneSettings(
+        sign_px=69.37006576905465,
+        rotation_deg=37.27502726144793,
+        tilt_deg=33.907560376844245,
+        tilt_axis_deg=94.63564698089515,
+        focal_px=1600.0,
+        photo="coffee",
+        black_level=46.86410981423792,
+        white_level=230.87973051702718,
+        psf_sigma_px=0.5992059725657017,
+        noise_sigma=1.3501108907161956,
+        jpeg_quality=89,
+        bar_over_slot=2,
+    )
+    crop = scene.render_scene_crop("1100", s, np.random.default_rng(26))
+    assert crop.covered_slots == (2,)
+    res = decode_roi(crop.image, PAPER_CODES)
+    assert res.code is None and res.reason == DecodeReason.OCCLUDED
+    monkeypatch.setattr(occlusion, "bars_through", lambda *a, **k: [])
+    assert decode_roi(crop.image, PAPER_CODES).code == "1000"
+
+
+def test_a_thin_bar_along_a_white_slot_does_not_read_black(monkeypatch):
+    """Dirt or a short stick along slot 1's centre line (inside the slot, so no
+    band crosses the rim) blackens the slot's reading row but leaves white
+    inside the slot: erased, never 0 (0011 is in the map)."""
+    crop = render_crop("1011", np.random.default_rng(3), sign_px=90, rotation_deg=25.0)
+    theta = slot_angle_rad(1)
+    radial = np.array([np.cos(theta), np.sin(theta)])
+    tangential = np.array([np.sin(theta), -np.cos(theta)])
+    c = 0.3 * radial
+    ends = apply_homography(
+        crop.crop_H_sign, np.stack([c - 0.09 * tangential, c + 0.09 * tangential])
+    )
+    image = crop.image.copy()
+    p0, p1 = (tuple(int(round(v * 16)) for v in p) for p in ends)
+    cv2.line(image, p0, p1, 25, int(round(0.12 * 90)), cv2.LINE_AA, 4)  # 3/4 of the slot
+    codes = ["1011", "0011", "0101"]
+    assert decode_roi(crop.image, codes).code == "1011"
+    assert decode_roi(image, codes).code in (None, "1011")
+    monkeypatch.setattr(decoder, "_black_inside", lambda *a: True)
+    assert decode_roi(image, codes).code == "0011"
