@@ -63,7 +63,6 @@ from signpose.frontend.decoder import (
     _Region,
     _safe_disc_ellipse,
     _subpixel_centroids,
-    _translated,
     keypoint_sigmas,
 )
 from signpose.frontend.homography import fit_homography, polygon_centroids, prepare_source
@@ -145,36 +144,45 @@ def _align(
 ) -> tuple[np.ndarray | None, float]:
     """The homography moved so the location square sits on its gray-level centroid.
 
+    The window is the predicted square grown by ``align_grow`` (a polygon
+    mask: the directional rectangle stays out); a pixel weighs its gray
+    level above the window's midpoint, capped at half the range (the
+    square's white, not the black ring). Whole-array OpenCV calls on uint8.
+
     Returns (homography or None when the square is not found, shift [px]).
     """
     h, w = gray.shape
     half = _HALF_SQUARE + s.align_grow
     corners = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
-    total = np.zeros(2)
+    hom = np.array(image_H_sign, float)
+    total_u = total_v = 0.0
     for _ in range(s.align_passes):
-        quad = _project(image_H_sign, corners)
-        (u0, v0), (u1, v1) = np.floor(quad.min(axis=0)), np.ceil(quad.max(axis=0)) + 1
+        quad = _project(hom, corners)
+        us, vs = quad[:, 0].tolist(), quad[:, 1].tolist()
+        u0, v0 = math.floor(min(us)), math.floor(min(vs))
+        u1, v1 = math.ceil(max(us)) + 1, math.ceil(max(vs)) + 1
         if not (u0 >= 0 and v0 >= 0 and u1 <= w and v1 <= h) or u1 - u0 < 3 or v1 - v0 < 3:
             return None, 0.0
-        win = gray[int(v0) : int(v1), int(u0) : int(u1)]
+        win = gray[v0:v1, u0:u1]
         mask = np.zeros(win.shape, np.uint8)
         pts = np.round((quad - (u0, v0)) * 16).astype(np.int32)
-        cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=4)
+        cv2.fillConvexPoly(mask, pts, 255, lineType=cv2.LINE_8, shift=4)
         lo, hi, _, _ = cv2.minMaxLoc(win, mask)
         if hi - lo < 25.0:
             return None, 0.0
-        # White fraction above the midpoint: the square's pixels, not the black ring's.
-        wt = (win.astype(np.float32) - np.float32(0.5 * (lo + hi))) * np.float32(2.0 / (hi - lo))
-        np.clip(wt, 0.0, 1.0, out=wt)
-        mo = cv2.moments(wt * mask)
+        wt = cv2.subtract(win, np.full_like(win, int(round(0.5 * (lo + hi)))))
+        wt = cv2.bitwise_and(cv2.min(wt, np.full_like(win, int((hi - lo) // 2))), mask)
+        mo = cv2.moments(wt)
         if mo["m00"] <= 0:
             return None, 0.0
-        cu = u0 + mo["m10"] / mo["m00"]
-        cv = v0 + mo["m01"] / mo["m00"]
-        shift = np.array([cu, cv]) - _project(image_H_sign, _PART_CENTRES[:1])[0]
-        image_H_sign = _translated(image_H_sign, shift)
-        total += shift
-    return image_H_sign, float(np.hypot(*total))
+        # The square's centre under ``hom`` is its translation column (x = y = 0).
+        du = u0 + mo["m10"] / mo["m00"] - hom[0, 2] / hom[2, 2]
+        dv = v0 + mo["m01"] / mo["m00"] - hom[1, 2] / hom[2, 2]
+        hom[0] += du * hom[2]
+        hom[1] += dv * hom[2]
+        total_u += du
+        total_v += dv
+    return hom, math.hypot(total_u, total_v)
 
 
 def verify_sign(
