@@ -259,9 +259,22 @@ class _Fixes:
     outside: int
 
 
+def _nearest(stamps: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(K,) index of the stamp (N,) nearest to each time t (K,)."""
+    j = np.clip(np.searchsorted(stamps, t), 1, max(len(stamps) - 1, 1))
+    if len(stamps) < 2:
+        return np.zeros(len(t), np.int64)
+    return np.where(np.abs(stamps[j - 1] - t) <= np.abs(stamps[j] - t), j - 1, j)
+
+
 def _attach_fixes(
     telemetry: Telemetry, sign_map: SignMap, stamps: np.ndarray, offset: float, s: FusionSettings
 ) -> _Fixes | None:
+    """The fixes in the map's frame, each on its nearest frame (None without GNSS).
+
+    Raises:
+        InputError: GNSS to fuse but the map has no origin.
+    """
     g = telemetry.gnss
     if g is None or len(g) == 0 or not s.use_gnss:
         return None
@@ -271,11 +284,7 @@ def _attach_fixes(
             f"of {telemetry.source} in its frame; add origin: {{lat_deg, lon_deg, height_m}}"
         )
     tv = np.asarray(g.t_s, float) - offset
-    j = np.clip(np.searchsorted(stamps, tv), 1, len(stamps) - 1) if len(stamps) > 1 else None
-    if j is None:
-        frame = np.zeros(len(tv), np.int64)
-    else:
-        frame = np.where(np.abs(stamps[j - 1] - tv) <= np.abs(stamps[j] - tv), j - 1, j)
+    frame = _nearest(stamps, tv)
     dt = tv - stamps[frame]
     ok = np.abs(dt) <= s.gnss_max_dt_s
     z = enu_from_geodetic(sign_map.origin, g.lat_deg, g.lon_deg, g.height_m)
@@ -421,6 +430,10 @@ def gimbal_from_world_R_cam(world_R_cam: np.ndarray) -> tuple[float, float, floa
     return math.degrees(yaw), math.degrees(pitch), math.degrees(roll)
 
 
+# A frame takes the gimbal sample nearest in time if within this [s].
+GIMBAL_MAX_DT_S = 0.1
+
+
 def _add_gimbal(
     graph: gtsam.NonlinearFactorGraph,
     gimbal: GimbalAngles,
@@ -431,10 +444,11 @@ def _add_gimbal(
         return 0
     noise = gtsam.noiseModel.Isotropic.Sigma(3, s.gimbal_sigma_rad)
     t = np.asarray(gimbal.t_s, float)
+    nearest = _nearest(t, np.asarray(tel_stamps, float))
     n = 0
     for i, ti in enumerate(tel_stamps):
-        k = int(np.argmin(np.abs(t - ti)))
-        if abs(t[k] - ti) > 0.1:
+        k = int(nearest[i])
+        if abs(t[k] - ti) > GIMBAL_MAX_DT_S:
             continue
         R = world_R_cam_from_gimbal(gimbal.yaw_deg[k], gimbal.pitch_deg[k], gimbal.roll_deg[k])
         graph.add(gtsam.PoseRotationPrior3D(X(i), gtsam.Rot3(R), noise))
