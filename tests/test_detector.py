@@ -24,6 +24,9 @@ from signpose.frontend.observations import SignObservation
 from signpose.frontend.sign import render_sign_png
 from signpose.maps.loader import bundled_map_path, load_map
 
+from signpose.io.boxes import read_boxes
+from signpose.sim.flight import SimSettings, simulate
+
 
 def test_paper_merge_same_size_needs_two_windows_within_half_a_window():
     rects = np.array(
@@ -269,3 +272,27 @@ def test_observations_carry_the_decoders_erased_slots_and_keypoint_sigmas():
     # A sigma of a keypoint the reading dropped is not reported.
     assert obs.keypoint_sigma_px == {"center": (0.05, 0.06), "slot3": (0.1, 0.1)}
     assert obs.sigma_px == pytest.approx(0.08)
+
+
+def test_on_a_photograph_with_dark_regions_a_wider_window_range_finds_a_hidden_sign(tmp_path):
+    """A dark background joined to a sign's blob misstates its size (fast_scale_dark)."""
+    sign_map = load_map(bundled_map_path())
+    settings = SimSettings(
+        frames=3,
+        trajectory="climb-hover-depart",
+        distance_m=28.0,
+        seed=4346,  # eval_detector's photo flight 2 (coffee): its frame 0
+        format="png",
+        photo=True,
+    )
+    simulate(sign_map, tmp_path, settings, progress=False)
+    gray = cv2.imread(str(tmp_path / "frames" / "000000.png"), cv2.IMREAD_GRAYSCALE)
+    truth = read_boxes(tmp_path / "boxes.jsonl")[0]
+    narrow = DetectorSettings(fast_scale_dark=DetectorSettings().fast_scale)
+    before = SignDetector(settings=narrow).detect(gray, sign_map.codes).detections
+    after = SignDetector().detect(gray, sign_map.codes).detections
+    assert {d.code for d in before} < {d.code for d in after}
+    by_code = {s["code"]: s for s in truth["signs"]}
+    for d in after:  # every reading is a sign of the frame, where it is
+        s = by_code[d.code]
+        assert np.hypot(*np.subtract(d.center_px, s["center_px"])) < 0.25 * s["diameter_px"]
