@@ -910,18 +910,25 @@ def _cached(key: tuple, build: Callable[[], object]):
     return _WORKER_CACHE[key]
 
 
-def run_chunk(job: ChunkJob, det: Detector | None = None, out: _Collected | None = None):
+def run_chunk(
+    job: ChunkJob,
+    det: Detector | None = None,
+    out: _Collected | None = None,
+    source: FrameSource | None = None,
+) -> ChunkResult:
     """Observe one chunk with its own tracking (a full-frame search at its start).
 
     Args:
         job: the chunk.
         det: the detector (default: ``job.make``'s, built once per process).
         out: where the frames go as they finish (inline); None: into the result.
+        source: the input, open (inline); None: ``job.spec`` opened once per process.
 
     Returns:
         The ChunkResult (its frames empty when ``out`` was given).
     """
-    source = _cached(("source", job.spec), job.spec.open)
+    if source is None:
+        source = _cached(("source", job.spec), job.spec.open)
     if det is None:
         det = _cached(("detector", job.make, job.settings), lambda: job.make(job.settings))
     read = RangeRead(job.start, job.stop, job.size)
@@ -1132,12 +1139,21 @@ def _lose(lost: LostChunk, out: _Collected) -> None:
 
 
 def _observe_chunks(
-    jobs: list[ChunkJob], workers: int, det: Detector | None, out: _Collected
+    source: FrameSource,
+    jobs: list[ChunkJob],
+    workers: int,
+    det: Detector | None,
+    out: _Collected,
 ) -> list[RangeRead]:
-    """Every chunk, in processes or inline; frames streamed in flight order as chunks finish."""
+    """Every chunk, in processes or inline; frames streamed in flight order as chunks finish.
+
+    Raises:
+        RuntimeError: every chunk's process died (nothing was observed).
+    """
     if workers <= 1 or det is not None or len(jobs) == 1:
-        det = det or jobs[0].make(jobs[0].settings)
-        return [run_chunk(job, det, out).read for job in jobs]
+        if det is None:
+            det = jobs[0].make(jobs[0].settings)
+        return [run_chunk(job, det, out, source).read for job in jobs]
     done: dict[int, ChunkResult | LostChunk] = {}
     reads = {}
     pool = ChunkProcesses(workers)
@@ -1157,6 +1173,10 @@ def _observe_chunks(
         pool.stop()
         raise
     pool.close()
+    if not reads:
+        raise RuntimeError(
+            f"{source.path}: every process observing the flight died ({out.lost[0].reason})"
+        )
     return [reads[k] for k in sorted(reads)]
 
 
@@ -1231,7 +1251,7 @@ def observe(
         else:
             size = _first_frame_size(source, camera)
             jobs = _chunk_jobs(source, size, sign_map, camera, codes, s, make)
-            reads = _observe_chunks(jobs, _worker_count(s), detector, out)
+            reads = _observe_chunks(source, jobs, _worker_count(s), detector, out)
             problems = _chunk_problems(source, reads, out.lost)
     except BaseException as exc:
         bar.close()

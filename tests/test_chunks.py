@@ -18,6 +18,7 @@ from conftest import simulate_tiny
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose import pipeline
+from signpose.io import sources
 from signpose.io.observations import read_observations
 from signpose.io.sources import RangeRead, open_source, read_range
 from signpose.sim.flight import SimSettings, simulate
@@ -58,6 +59,12 @@ def test_a_chunk_read_after_a_seek_is_the_sequential_decode(tiny_video):
     assert problems == source.problems == []
     # Past the end: nothing, and the video is not said to stop early.
     assert _chunked(tiny_video.frames_path, [(0, 16), (16, None)]) == (in_order, [])
+
+
+def test_a_video_that_cannot_seek_is_decoded_up_to_the_chunk(tiny_video, monkeypatch):
+    in_order = _frames(open_source(tiny_video.frames_path))
+    monkeypatch.setattr(sources, "_seek", lambda cap, position: False)
+    assert _chunked(tiny_video.frames_path, [(0, 7), (7, None)]) == (in_order, [])
 
 
 def test_chunks_of_a_folder_report_what_a_pass_in_order_reports(tmp_path):

@@ -255,11 +255,16 @@ class VideoSource(FrameSource):
         return self.length
 
     def _read_positions(self, start: int, stop: int | None, read: RangeRead) -> Iterator[Frame]:
-        """From a seek to ``start`` (exact for the simulator's mp4v: tests/test_chunks.py)."""
+        """From a seek to ``start`` (the same frames as reading in order for the simulator's
+        mp4v: tests/test_chunks.py); where the container does not land on ``start``, the
+        frames before it are decoded and dropped."""
         cap = cv2.VideoCapture(str(self.path))
         try:
-            if start > 0:
-                cap.set(cv2.CAP_PROP_POS_FRAMES, start)
+            if start > 0 and not _seek(cap, start):
+                cap.release()
+                cap = cv2.VideoCapture(str(self.path))
+                for _ in range(start):
+                    cap.grab()
             position, run, last_ns = start, 0, -1
             while (stop is None or position < stop) and run <= MAX_FAILED_READS:
                 ok, image = cap.read()
@@ -307,6 +312,13 @@ class VideoSource(FrameSource):
             stamp_ns = int(round(position / self.fps * 1e9)) if self.fps > 0 else last_ns + 1
             stamp_ns = max(stamp_ns, last_ns + 1)
         return stamp_ns
+
+
+def _seek(cap: cv2.VideoCapture, position: int) -> bool:
+    """Seek to frame ``position``; False where the decoder does not say it is there."""
+    return bool(cap.set(cv2.CAP_PROP_POS_FRAMES, position)) and (
+        int(cap.get(cv2.CAP_PROP_POS_FRAMES)) == position
+    )
 
 
 class _DamagedReads:
