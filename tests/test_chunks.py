@@ -61,6 +61,17 @@ def test_a_chunk_read_after_a_seek_is_the_sequential_decode(tiny_video):
     assert _chunked(tiny_video.frames_path, [(0, 16), (16, None)]) == (in_order, [])
 
 
+def test_chunks_of_an_mcap_log_are_its_frames_in_order(tmp_path):
+    """A log is read from its start for every chunk: the messages before it for their stamps."""
+    sim = simulate_tiny(tmp_path, frames=12, fmt="mcap")
+    source = open_source(sim.frames_path)
+    assert source.range_length == 12
+    in_order = _frames(source)
+    chunked, problems = _chunked(sim.frames_path, [(0, 4), (4, 9), (9, None)])
+    assert chunked == in_order
+    assert problems == source.problems == []
+
+
 def test_a_video_that_cannot_seek_is_decoded_up_to_the_chunk(tiny_video, monkeypatch):
     in_order = _frames(open_source(tiny_video.frames_path))
     monkeypatch.setattr(sources, "_seek", lambda cap, position: False)
