@@ -384,12 +384,33 @@ def _predicted_homography(
 
 
 def _extrapolate(prev: np.ndarray, prev2: np.ndarray | None, steps: int = 1) -> np.ndarray:
-    """Constant velocity in translation from the last two poses, ``steps`` frames on."""
+    """Constant velocity from the last two poses, ``steps`` frames on.
+
+    Translation and rotation: the camera's turn between the two poses is
+    applied again ``steps`` times (a turning camera moves every sign across
+    the image; with the translation only, the predictions on the simulated
+    flights were off by 32 px median, with the rotation too by 1.8 px, from
+    true poses two frames back: scripts/bench_frontend.py's tracking).
+    """
     if prev2 is None:
         return prev
     out = prev.copy()
     out[:3, 3] = prev[:3, 3] + steps * (prev[:3, 3] - prev2[:3, 3])
+    out[:3, :3] = prev[:3, :3] @ _rotation_power(prev2[:3, :3].T @ prev[:3, :3], steps)
     return out
+
+
+def _rotation_power(rel: np.ndarray, steps: float) -> np.ndarray:
+    """(3, 3) rotation ``rel`` applied ``steps`` times (axis-angle scaled, Rodrigues)."""
+    cos = float(np.clip((np.trace(rel) - 1.0) / 2.0, -1.0, 1.0))
+    angle = math.acos(cos)
+    if angle < 1e-9 or angle > math.pi - 1e-6:
+        return np.eye(3) if angle < 1e-9 else rel
+    axis = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]])
+    axis /= 2.0 * math.sin(angle)
+    a = angle * steps
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + math.sin(a) * k + (1.0 - math.cos(a)) * (k @ k)
 
 
 @dataclass(frozen=True)

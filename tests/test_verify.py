@@ -12,6 +12,7 @@ from signpose.frontend.detector import (
 )
 from signpose.frontend.verify import VerifyOutcome, verify_sign
 
+from signpose.pipeline import _extrapolate
 from signpose.sim.crops import render_crop
 
 
@@ -146,3 +147,16 @@ def test_homography_from_points_inverts_a_known_homography():
     b = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), h)
     assert np.abs(a - b).max() < 1e-3  # [px]
     assert homography_from_points(np.full((4, 2), np.nan)) is None
+
+
+def test_the_trackers_prediction_turns_with_the_camera():
+    """pipeline._extrapolate repeats the last turn (the predicted homographies need it)."""
+    turn, _ = cv2.Rodrigues(np.array([0.01, -0.03, 0.02]))
+    prev2 = np.eye(4)
+    prev = np.eye(4)
+    prev[:3, :3] = turn
+    prev[:3, 3] = (0.1, 0.0, -0.2)
+    out = _extrapolate(prev, prev2, 2)
+    assert np.allclose(out[:3, :3], turn @ turn @ turn, atol=1e-12)
+    assert np.allclose(out[:3, 3], (0.3, 0.0, -0.6))
+    assert np.allclose(_extrapolate(prev2, prev2, 3), np.eye(4))
