@@ -13,12 +13,14 @@ and directional hypotheses) repeats work whose answer is already known.
    must agree with the predicted code;
 3. measures the gray-level centroid of every white part of the code near its
    predicted place (``decoder._subpixel_centroids``) and refits the
-   homography once (``decoder._fit_parts``);
+   homography once (``_refit``: a homography for four or more parts, an
+   affine correction of the prediction for three);
 4. checks at the refit homography what the full decoder checks before it
    accepts a reading: the slots read again the same code, the occlusion
    evidence erases nothing and covers no part, no white is left unexplained,
-   the code is the map's (``decoder._accept_code``); the refit's residual
-   and the centre's move stay small.
+   the code is the map's (``decoder._accept_code``); nothing dark lies
+   across a white part (``max_disturbance``); the refit's residual and the
+   centre's move stay small.
 
 Anything else (a slot reads differently, a keypoint not found, a large
 residual, an occluder, fewer than three white parts, a sign cut by the image's
