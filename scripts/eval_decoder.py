@@ -19,6 +19,7 @@ some blur, dirt and power lines; seeded) and decodes each with
 * the median decoding time per crop.
 
     .venv/bin/python scripts/eval_decoder.py [--quick] [--json PATH] [--seed N]
+        [--independent N] [--independent-only] [--dump-wrong DIR]
 """
 
 from __future__ import annotations
@@ -29,16 +30,17 @@ import math
 import sys
 import time
 from collections import Counter, defaultdict
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 from signpose.frontend.decoder import DecoderSettings, decode_roi
 from signpose.frontend.homography import apply_homography, disc_ellipse, polygon_centroids
 from signpose.frontend.sign import ALL_CODES, PAPER_CODES, sign_shape
 from tqdm import tqdm
 
-from signpose.core.fileio import atomic_write
+from signpose.core.fileio import atomic_path, atomic_write, ensure_dir
 from signpose.sim.crops import render_crop
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -178,12 +180,39 @@ def _unique_with_one_erased(code: str, slot: int, codes) -> bool:
     return flipped not in codes
 
 
-def run_independent(n_per_condition: int, seed: int, quiet: bool) -> dict:
-    """Decode ``n_per_condition`` independent crops per condition; print and return the table."""
+def _dump_wrong(dump_dir: Path, cond: str, i: int, crop, res) -> dict:
+    """Write one wrong reading's crop (PNG) and return what the record says of it."""
+    name = f"{cond.replace(' ', '_')}_{i:05d}_{crop.code}_read_{res.code}.png"
+    with atomic_path(dump_dir / name) as tmp:
+        cv2.imwrite(str(tmp), crop.image)
+    return {
+        "png": name,
+        "condition": cond,
+        "index": i,
+        "code": crop.code,
+        "read": res.code,
+        "erased_slots": list(res.erased_slots),
+        "covered": {k: round(v, 3) for k, v in crop.covered.items() if v > 0.005},
+        "covered_slots": list(crop.covered_slots),
+        "bars": crop.bars,
+        "settings": asdict(crop.settings),
+    }
+
+
+def run_independent(
+    n_per_condition: int, seed: int, quiet: bool, dump_dir: Path | None = None
+) -> dict:
+    """Decode ``n_per_condition`` independent crops per condition; print and return the table.
+
+    ``dump_dir``: write every wrong reading there (PNG per crop, wrong.jsonl).
+    """
     codes = PAPER_CODES
     rng = np.random.default_rng(seed)
     table: dict = {}
     sigma_rows = []
+    dumped = []
+    if dump_dir is not None:
+        ensure_dir(dump_dir)
     print(
         f"\nIndependent scenes (scripts/independent_scene.py, photographs, 3D bars, JPEG; "
         f"{n_per_condition} crops per condition, map = the paper's 10 codes, seed {seed})"
@@ -215,6 +244,8 @@ def run_independent(n_per_condition: int, seed: int, quiet: bool) -> dict:
                 counts[key]["reason:" + str(res.reason)] += 1
             if outcome == "correct":
                 sigma_rows.append(_sigma_row(cond, group, crop, res))
+            if outcome == "wrong" and dump_dir is not None:
+                dumped.append(_dump_wrong(dump_dir, cond, i, crop, res))
         table[cond] = {k: dict(v) for k, v in counts.items()}
         for key in (
             "all",
@@ -234,6 +265,11 @@ def run_independent(n_per_condition: int, seed: int, quiet: bool) -> dict:
     total_wrong = sum(t["all"].get("wrong", 0) for t in table.values())
     total_n = sum(t["all"]["n"] for t in table.values())
     print(f"  wrong codes overall: {total_wrong} of {total_n}")
+    if dump_dir is not None:
+        with atomic_write(dump_dir / "wrong.jsonl") as f:
+            for rec in dumped:
+                f.write(json.dumps(rec) + "\n")
+        print(f"  wrong readings written to {dump_dir} ({len(dumped)})")
     calib = _sigma_table(sigma_rows)
     return {
         "n_per_condition": n_per_condition,
@@ -300,10 +336,17 @@ def main(argv: list[str] | None = None) -> int:
         help="crops per condition of the independent scenes (default 100 quick, 400; 0: skip)",
     )
     ap.add_argument("--independent-only", action="store_true", help="only the independent scenes")
+    ap.add_argument(
+        "--dump-wrong",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write each wrong independent-scene reading to DIR (PNG + wrong.jsonl)",
+    )
     args = ap.parse_args(argv)
     n_indep = args.independent if args.independent is not None else (100 if args.quick else 400)
     if args.independent_only:
-        indep = run_independent(n_indep, args.seed, args.quiet)
+        indep = run_independent(n_indep, args.seed, args.quiet, args.dump_wrong)
         if args.json is not None:
             with atomic_write(args.json) as f:
                 json.dump({"independent": indep}, f, indent=2)
@@ -462,7 +505,9 @@ def main(argv: list[str] | None = None) -> int:
             f"not decoded {np.median(cpu[~ok]):.3f} ms (every fallback tried)"
         )
 
-    indep = run_independent(n_indep, args.seed, args.quiet) if n_indep > 0 else None
+    indep = (
+        run_independent(n_indep, args.seed, args.quiet, args.dump_wrong) if n_indep > 0 else None
+    )
 
     if args.json is not None:
         out = {
