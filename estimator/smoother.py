@@ -166,21 +166,23 @@ class SmootherSettings:
             running estimate, are eliminated into (a) linear factors on the
             newest frame, the landmarks and the bias, which start a fresh
             iSAM2 (the causal estimate goes on from all the information) and
-            (b) their conditionals on those variables, written out (kept
-            aside, ~10 KB per frame): after the last frame a back-substitution
-            through them and one small solve per block (given the final
-            landmarks) give every frame's final estimate, one selected
-            inversion its covariance. Landmark
-            copies (``isam_segment_frames``) still bound each update within
-            the window. The final estimate is then 1-3 mm from the batch
-            one (linearised where the running estimate was, cm from the end
-            result; scripts/bench_estimator.py measures it), the covariances
-            within 1 %. 0: one iSAM2 over the whole flight (1.2 MB per frame,
-            final estimate within 0.1 mm of batch).
+            (b) their conditionals on those variables, kept aside (~10 KB per
+            frame). After the last frame a back-substitution through them
+            gives the whole flight's estimate, centimetres from the batch
+            one (linearised where the running estimate was); Gauss-Newton
+            sweeps over the whole graph, each eliminated block by block
+            (window-sized blocks, one linear factor carried from each to the
+            next), take it to the batch solution (within 0.1 mm in
+            tests/test_isam2_memory.py), and the last sweep's conditionals
+            give the covariances by one selected inversion. Landmark copies
+            (``isam_segment_frames``) still bound each update within the
+            window. 0: one iSAM2 over the whole flight (1.2 MB per frame).
         compute_sigmas: compute per-pose marginal position sigmas.
         max_sigma_frames: skip the sigmas (NaN, with a warning) for longer
-            flights: the marginals cost ~3-5 ms per pose here (every pose's
-            clique carries all landmarks), more than the solve itself.
+            flights. With one Bayes-tree marginal per pose (3-5 ms each:
+            every pose's clique carries all landmarks) this was 3,000; the
+            one backward pass (``batch_covariances``) costs less than the
+            solve itself.
     """
 
     huber_k: float = 2.45
@@ -212,7 +214,7 @@ class SmootherSettings:
     isam_copy_sigma: float = 1e-5
     isam_window_frames: int = 300
     compute_sigmas: bool = True
-    max_sigma_frames: int = 3000
+    max_sigma_frames: int = 20000
 
 
 @dataclass(frozen=True)
@@ -903,7 +905,7 @@ def _insert_retracted(values: gtsam.Values, theta: gtsam.Values, key: int, dx: n
 
 @dataclass(frozen=True)
 class _WrittenOut:
-    """Frames that left iSAM2: ``R dx_key + S dx_parents = d`` for each, in elimination order.
+    """Eliminated frames (out of iSAM2, or a sweep's block): ``R dx_key + S dx_parents = d``.
 
     ``dx`` are tangent vectors at ``theta`` (the running estimate when they
     left); the parents are later frames of the same block, or the variables
@@ -1130,25 +1132,6 @@ class _Isam2Run:
                 break
         return final
 
-    def covariances(self, isam: gtsam.ISAM2, result: gtsam.Values, n: int) -> np.ndarray:
-        """(N, 6, 6) pose covariances: the written-out conditionals, then the last window's."""
-        order = gtsam.Ordering()
-        for k in range(self.start, n):
-            order.push_back(X(k))
-            if self.cv:
-                order.push_back(V(k))
-        window = set(isam.getLinearizationPoint().keys())
-        for k in sorted(window):
-            if chr(gtsam.Symbol(k).chr()) in "lmbc":
-                order.push_back(k)
-        net = isam.getFactorsUnsafe().linearize(result).eliminateSequential(order)
-        last = _net_conditionals(net)
-        if last is None:
-            return np.full((n, 6, 6), np.nan)
-        conds = [c for block in self.written for c in block.conditionals] + last
-        cov = _pose_covariances(conds, n)
-        return np.full((n, 6, 6), np.nan) if cov is None else cov
-
     def landmarks(self, result: gtsam.Values) -> np.ndarray:
         """(L, 3) the latest copy of every landmark; the survey for landmarks never seen."""
         m = self.b.m
@@ -1160,68 +1143,99 @@ class _Isam2Run:
         ).reshape(-1, 3)
 
 
-# Priors that hold the variables around a block at their final values while
-# the block is solved again (as the fixed landmark model's).
-HOLD_SIGMA = 1e-6
+# Gauss-Newton sweeps over the whole flight after a windowed iSAM2 (each one
+# exact, block by block), and when they stop: the largest position step [m].
+SWEEPS = 4
+SWEEP_TOL_M = 1e-5
 
 
-def _refine_blocks(run: _Isam2Run, result: gtsam.Values, n: int) -> None:
-    """Each written-out block of frames solved again given the final landmarks, bias and neighbours.
-
-    The blocks left iSAM2 linearised at the running estimate of their time,
-    centimetres from the final one; back-substitution through those
-    conditionals lands millimetres from the batch solution. With every other
-    variable at its final value, a block's own optimum is the joint one: one
-    small Levenberg-Marquardt solve per block (new factors from the
-    measurements, so nothing of the block was kept but its conditionals).
-    """
-    b, s = run.b, run.s
-    bounds = [0] + [blk.end for blk in run.written]
-    for a, e in zip(bounds[:-1], bounds[1:], strict=True):
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        hold_pose = gtsam.noiseModel.Isotropic.Sigma(6, HOLD_SIGMA)
-        hold_3 = gtsam.noiseModel.Isotropic.Sigma(3, HOLD_SIGMA)
-        if a == 0:  # the first frame's weak priors (the bias is held below)
-            first = gtsam.NonlinearFactorGraph()
-            b.first_priors(result.atPose3(X(0)), first)
-            for k in range(first.size()):
-                involved = first.at(k).keys()
-                if BIAS_KEY not in involved:
-                    graph.add(first.at(k))
-        held = [k for k in (a - 1, e) if 0 <= k < n]
-        for k in range(a, e):
-            values.insert(X(k), result.atPose3(X(k)))
-            if run.cv:
-                values.insert(V(k), result.atVector(V(k)))
-        for k in held:
-            values.insert(X(k), result.atPose3(X(k)))
-            graph.add(gtsam.PriorFactorPose3(X(k), result.atPose3(X(k)), hold_pose))
-            if run.cv:
-                values.insert(V(k), result.atVector(V(k)))
-                graph.add(gtsam.PriorFactorVector(V(k), result.atVector(V(k)), hold_3))
-        touched: set[int] = set()
-        for k in range(a, e):
-            touched |= b.projection_factors(k, graph, run.lm_keys)
-        for k in range(max(a, 1), min(e + 1, n)):
-            b.motion_factor(k, graph, run.bias_key)
-        for j in touched:
-            key = run.lm_keys[j]
-            values.insert(key, result.atPoint3(key))
-            graph.add(gtsam.PriorFactorPoint3(key, result.atPoint3(key), hold_3))
+def _sweep_values(run: _Isam2Run, result: gtsam.Values, n: int) -> gtsam.Values:
+    """The flight's variables as the batch graph names them (one key per landmark, one bias)."""
+    cur = gtsam.Values()
+    for i in range(n):
+        cur.insert(X(i), result.atPose3(X(i)))
         if run.cv:
-            bias = result.atConstantBias(run.bias_key)
-            values.insert(run.bias_key, bias)
-            hold_b = gtsam.noiseModel.Isotropic.Sigma(6, HOLD_SIGMA)
-            graph.add(gtsam.PriorFactorConstantBias(run.bias_key, bias, hold_b))
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(s.lm_max_iterations)
-        params.setRelativeErrorTol(s.lm_rel_tol)
-        solved = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-        for k in range(a, e):
-            result.update(X(k), solved.atPose3(X(k)))
+            cur.insert(V(i), result.atVector(V(i)))
+    for j in sorted(run.added_lm):
+        cur.insert(L(j), result.atPoint3(run.lm_keys[j]))
+    if run.cv:
+        cur.insert(BIAS_KEY, result.atConstantBias(run.bias_key))
+    return cur
+
+
+def _block_graph(run: _Isam2Run, a: int, e: int, n: int) -> gtsam.NonlinearFactorGraph:
+    """Frames a..e-1's factors, the motion factor on to frame e, the priors in the first block."""
+    b = run.b
+    graph = gtsam.NonlinearFactorGraph()
+    if a == 0:
+        for j in sorted(run.added_lm):
+            graph.add(b.landmark_prior(j))
+    for i in range(a, e):
+        b.projection_factors(i, graph)
+    for i in range(a + 1, min(e + 1, n)):
+        b.motion_factor(i, graph)
+    return graph
+
+
+def _sweep(run: _Isam2Run, cur: gtsam.Values, n: int, block: int, first_pose) -> list:
+    """One Gauss-Newton step of the whole flight's graph, eliminated block by block in time
+    order (what stays after a block: one linear factor on the next frame, the landmarks and
+    the bias), as the blocks' conditionals (_WrittenOut, last block last)."""
+    carry = gtsam.GaussianFactorGraph()
+    blocks = []
+    for a in range(0, n, block):
+        e = min(a + block, n)
+        graph = _block_graph(run, a, e, n)
+        if a == 0:
+            run.b.first_priors(first_pose, graph)
+        linear = graph.linearize(cur)
+        for k in range(carry.size()):
+            linear.push_back(carry.at(k))
+        order = gtsam.Ordering()
+        for i in range(a, e):
+            order.push_back(X(i))
             if run.cv:
-                result.update(V(k), solved.atVector(V(k)))
+                order.push_back(V(i))
+        if e == n:
+            if run.cv:
+                order.push_back(BIAS_KEY)
+            for j in sorted(run.added_lm):
+                order.push_back(L(j))
+            blocks.append(_WrittenOut.of(linear.eliminateSequential(order), cur, e))
+        else:
+            net, carry = linear.eliminatePartialSequential(order)
+            blocks.append(_WrittenOut.of(net, cur, e))
+    return blocks
+
+
+def _converge_in_blocks(run: _Isam2Run, result: gtsam.Values, n: int) -> tuple:
+    """(Values of the batch optimum, the last sweep's blocks) from the windowed run's estimate.
+
+    The windowed iSAM2 leaves the flight linearised where its running estimate
+    was (centimetres from the end result); Gauss-Newton sweeps over the whole
+    graph, each one eliminated block by block (memory: one block's factors and
+    the conditionals), converge from the back-substituted estimate to the
+    batch solution.
+    """
+    for block in reversed(run.written):
+        block.back_substitute(result)
+    cur = _sweep_values(run, result, n)
+    first_pose = gtsam.Pose3(result.atPose3(X(0)))
+    size = max(int(run.s.isam_window_frames), 1)
+    blocks: list = []
+    for _ in range(SWEEPS):
+        blocks = _sweep(run, cur, n, size, first_pose)
+        nxt = gtsam.Values()
+        for blk in reversed(blocks):
+            blk.back_substitute(nxt)
+        step = max(
+            float(np.linalg.norm(nxt.atPose3(X(i)).translation() - cur.atPose3(X(i)).translation()))
+            for i in range(n)
+        )
+        cur = nxt
+        if step < SWEEP_TOL_M:
+            break
+    return cur, blocks
 
 
 def smooth_isam2(
@@ -1255,17 +1269,25 @@ def smooth_isam2(
     isam = run.converge()
     result = isam.calculateBestEstimate()
     final_error = float(isam.getFactorsUnsafe().error(result))  # of the last window's graph
-    for block in reversed(run.written):
-        block.back_substitute(result)
-    _refine_blocks(run, result, n)
+    landmarks = run.landmarks(result)
+    blocks: list = []
+    if run.written:
+        result, blocks = _converge_in_blocks(run, result, n)
+        landmarks = np.array(
+            [
+                result.atPoint3(L(j)) if j in run.added_lm else meas.landmark_world[j]
+                for j in range(run.n_lm)
+            ]
+        ).reshape(-1, 3)
     seconds = time.perf_counter() - t0
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)]).reshape(n, 4, 4)
     cov6 = None
     sigma_seconds = 0.0
     if run.want_sigmas:
         t1 = time.perf_counter()
-        if run.written:
-            cov6 = run.covariances(isam, result, n)
+        if blocks:  # the last sweep's conditionals, linearised at the optimum
+            cov = _pose_covariances([c for blk in blocks for c in blk.conditionals], n)
+            cov6 = np.full((n, 6, 6), np.nan) if cov is None else cov
         else:
             cov6 = np.array([isam.marginalCovariance(X(i)) for i in range(n)])
         sigma_seconds = time.perf_counter() - t1
@@ -1275,7 +1297,7 @@ def smooth_isam2(
         sigma_xyz=_sigmas_from(cov6, poses),
         observed=observed,
         signs_used=signs,
-        landmarks_world=run.landmarks(result),
+        landmarks_world=landmarks,
         causal_world_T_cam=causal,
         seconds=seconds,
         sigma_seconds=sigma_seconds,
