@@ -167,7 +167,11 @@ def _configurations(args, versions) -> list[tuple[str, str, ModuleType, ModuleTy
 
 
 def _summary(values: list[float]) -> dict:
-    return {"min": round(min(values), 3), "median": round(statistics.median(values), 3)}
+    return {
+        "min": round(min(values), 3),
+        "median": round(statistics.median(values), 3),
+        "all": [round(v, 3) for v in values],
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -767,12 +767,12 @@ class _Collected:
     next_index: int = 0
     lost: list[LostChunk] = field(default_factory=list)
     # Instead of all that: frames go here as they are (a worker process's chunk).
-    sink: list[tuple[FrameObservations, tuple[RefusedObservation, ...]]] | None = None
+    sink: Callable[[FrameObservations, list[RefusedObservation]], None] | None = None
 
     def add(self, obs: FrameObservations, refused: list[RefusedObservation]) -> None:
         """The next frame of the flight (its index and its refusals' renumbered)."""
         if self.sink is not None:
-            self.sink.append((obs, tuple(refused)))
+            self.sink(obs, refused)
             return
         if obs.frame != self.next_index:
             obs = replace(obs, frame=self.next_index)
@@ -936,6 +936,7 @@ def run_chunk(
     det: Detector | None = None,
     out: _Collected | None = None,
     source: FrameSource | None = None,
+    send: Callable[[FrameObservations, list[RefusedObservation]], None] | None = None,
 ) -> ChunkResult:
     """Observe one chunk with its own tracking (a full-frame search at its start).
 
@@ -944,9 +945,11 @@ def run_chunk(
         det: the detector (default: ``job.make``'s, built once per process).
         out: where the frames go as they finish (inline); None: into the result.
         source: the input, open (inline); None: ``job.spec`` opened once per process.
+        send: where each frame goes as it finishes, when ``out`` is None (a worker
+            process's pipe); None: into the result.
 
     Returns:
-        The ChunkResult (its frames empty when ``out`` was given).
+        The ChunkResult (its frames empty when ``out`` or ``send`` was given).
     """
     if source is None:
         source = _cached(("source", job.spec), job.spec.open)
@@ -954,12 +957,15 @@ def run_chunk(
         det = _cached(("detector", job.make, job.settings), lambda: job.make(job.settings))
     read = RangeRead(job.start, job.stop, job.size)
     tracker = FrameTracker(job.sign_map, job.camera, job.codes, job.settings)
-    mine = _Collected(None, None, sink=[]) if out is None else out
+    frames: list[tuple[FrameObservations, tuple[RefusedObservation, ...]]] = []
+    if send is None:
+        send = lambda obs, refused: frames.append((obs, tuple(refused)))  # noqa: E731
+    mine = _Collected(None, None, sink=send) if out is None else out
     before = dict(mine.timing), mine.tracked_frames, mine.full_frames
     _observe_chunk(read_range(source, read), tracker, det, mine, job.settings.prefetch)
     return ChunkResult(
         job.number,
-        tuple(mine.sink or ()),
+        tuple(frames),
         read,
         {k: v - before[0].get(k, 0.0) for k, v in mine.timing.items()},
         mine.tracked_frames - before[1],
@@ -967,8 +973,18 @@ def run_chunk(
     )
 
 
+@dataclass(frozen=True)
+class ChunkFrame:
+    """One frame of chunk ``number`` as a worker finished it (``obs.frame`` = position)."""
+
+    number: int
+    obs: FrameObservations
+    refused: tuple[RefusedObservation, ...]
+
+
 def _chunk_worker(conn) -> None:
-    """A worker process: observe the chunks it is sent until it is sent None."""
+    """A worker process: observe the chunks it is sent until it is sent None; each frame
+    is sent as it finishes (so Ctrl-C keeps what the earliest chunk did), then the result."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
     while True:
         try:
@@ -977,8 +993,12 @@ def _chunk_worker(conn) -> None:
             return
         if job is None:
             return
+
+        def send(obs, refused, number=job.number) -> None:
+            conn.send(ChunkFrame(number, obs, tuple(refused)))
+
         try:
-            answer: object = run_chunk(job)
+            answer: object = run_chunk(job, send=send)
         except MemoryError:
             os._exit(WORKER_OUT_OF_MEMORY)
         except Exception as exc:  # noqa: BLE001 - raised again in the parent
@@ -1021,8 +1041,8 @@ class ChunkProcesses:
         self._workers.append(worker)
         return worker
 
-    def run(self, jobs: Iterable[ChunkJob]) -> Iterator[ChunkResult | LostChunk]:
-        """The chunks' results as they finish (in any order)."""
+    def run(self, jobs: Iterable[ChunkJob]) -> Iterator[ChunkFrame | ChunkResult | LostChunk]:
+        """The chunks' frames and results as they finish (chunks in any order)."""
         todo = deque(jobs)
         idle = [self._start() for _ in range(min(self._wanted, len(todo)))]
         busy: list[_Worker] = []
@@ -1037,7 +1057,9 @@ class ChunkProcesses:
             for worker in [w for w in busy if w.conn in ready or w.process.sentinel in ready]:
                 busy.remove(worker)
                 answer = self._answer(worker)
-                if isinstance(answer, LostChunk):
+                if isinstance(answer, ChunkFrame):
+                    busy.append(worker)  # the chunk goes on
+                elif isinstance(answer, LostChunk):
                     self._workers.remove(worker)
                     if todo:
                         idle.append(self._start())
@@ -1047,7 +1069,7 @@ class ChunkProcesses:
                     raise answer
                 yield answer
 
-    def _answer(self, worker: _Worker) -> ChunkResult | LostChunk | BaseException:
+    def _answer(self, worker: _Worker) -> ChunkFrame | ChunkResult | LostChunk | BaseException:
         job = worker.job
         assert job is not None
         try:
@@ -1143,6 +1165,41 @@ def _first_frame_size(source: FrameSource, camera: CameraModel | None) -> tuple[
     return first.image_size
 
 
+def _merge_in_order(
+    answers: Iterable[ChunkFrame | ChunkResult | LostChunk],
+    out: _Collected,
+    reads: dict[int, RangeRead],
+) -> None:
+    """The workers' frames into ``out`` in flight order: the earliest unfinished chunk's
+    as they come, the later chunks' once every chunk before them is done."""
+    done: dict[int, ChunkResult | LostChunk] = {}
+    early: dict[int, list[ChunkFrame]] = {}
+    last_position: dict[int, int] = {}
+    following = 0
+    for answer in answers:
+        if isinstance(answer, ChunkFrame):
+            last_position[answer.number] = answer.obs.frame
+            if answer.number == following:
+                out.add(answer.obs, list(answer.refused))
+            else:
+                early.setdefault(answer.number, []).append(answer)
+            continue
+        done[answer.number] = answer
+        while following in done:
+            item = done.pop(following)
+            if isinstance(item, ChunkResult):
+                reads[following] = item.read
+                _merge(item, out)
+            else:  # the frames it sent before it died are kept
+                after = last_position.get(following)
+                lost = item if after is None else replace(item, start=after + 1)
+                if lost.stop is None or lost.start < lost.stop:
+                    _lose(lost, out)
+            following += 1
+            for frame in early.pop(following, []):
+                out.add(frame.obs, list(frame.refused))
+
+
 def _merge(result: ChunkResult, out: _Collected) -> None:
     for key, value in result.timing_s.items():
         out.timing[key] += value
@@ -1175,21 +1232,10 @@ def _observe_chunks(
         if det is None:
             det = jobs[0].make(jobs[0].settings)
         return [run_chunk(job, det, out, source).read for job in jobs]
-    done: dict[int, ChunkResult | LostChunk] = {}
-    reads = {}
+    reads: dict[int, RangeRead] = {}
     pool = ChunkProcesses(workers)
     try:
-        following = 0
-        for answer in pool.run(jobs):
-            done[answer.number] = answer
-            while following in done:
-                item = done.pop(following)
-                if isinstance(item, ChunkResult):
-                    reads[following] = item.read
-                    _merge(item, out)
-                else:
-                    _lose(item, out)
-                following += 1
+        _merge_in_order(pool.run(jobs), out, reads)
     except BaseException:
         pool.stop()
         raise
@@ -1409,8 +1455,8 @@ def _run_geo(s: RunSettings, sign_map: SignMap, estimate: EstimateResult, tel) -
         gnss = telemetry.gnss
         given = tel.request.clock_offset_s
         offset, outlier = fused_clock_and_outliers(estimate.fusion, gnss, given)
-        if estimate.fusion is not None:
-            tel.notes.append(fusion_summary(estimate.fusion))
+        if (f := estimate.fusion) is not None:  # a refused fusion: its note only
+            tel.notes.extend(f.notes if f.refused else (fusion_summary(f), *f.notes))
     geo = run_geo(sign_map, estimate.methods, gnss, offset, outlier, required=s.geo)
     if geo.note and telemetry is not None:
         tel.notes.append(f"note: {geo.note}")
