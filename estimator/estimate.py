@@ -692,7 +692,8 @@ def _smoothed(
     fused = None
     if telemetry is not None:  # the smoothed graph with the drone's sensors, from its solution
         fused = fuse_trajectory(frames, sign_map, camera, stamps, telemetry, fusion, r)
-        methods["fused"] = _from_smoother("fused", stamps, fused, status=fused.status)
+        if not fused.refused:  # refused: clock offset not determined (fused.notes says why)
+            methods["fused"] = _from_smoother("fused", stamps, fused, status=fused.status)
         timing["fused"] = fused.seconds
     return _SmoothedRun(
         methods=methods,

@@ -118,6 +118,9 @@ class FusionSettings:
         clock_offset_s: telemetry minus video time [s]; None estimates it.
         clock_search_s: the scan covers +-this around 0 [s].
         clock_step_s: the scan's step [s].
+        clock_max_shift: an estimated offset is used only if its sigma times
+            the flight's speed is at most this many GNSS sigmas
+            (``clock_shift_limit_s``); else the fusion is refused.
         smoother: settings of the vision factors and the motion prior.
         status: when a pose is weak or suspect.
         lm_max_iterations: Levenberg-Marquardt cap per stage.
@@ -146,6 +149,7 @@ class FusionSettings:
     clock_offset_s: float | None = None
     clock_search_s: float = 1.5
     clock_step_s: float = 0.01
+    clock_max_shift: float = 1.0
     smoother: SmootherSettings = field(default_factory=lambda: SmootherSettings(kernel=TUKEY))
     status: StatusSettings = field(default_factory=StatusSettings)
     lm_max_iterations: int = 100
@@ -188,6 +192,11 @@ class FusionResult:
             ``gimbal_priors``, ``projection_factors``).
         landmarks_world: (L, 3) the landmarks at the solution [m].
         seconds: solve time [s].
+        refused: True when nothing was fused because the clock offset could not
+            be determined well enough (``clock_shift_limit_s``): the poses are
+            the vision ones and "fused" is not a method of the run.
+        notes: one line each for the user (the refusal and how to avoid it;
+            the clock taken from the video's own).
     """
 
     world_T_cam: np.ndarray
@@ -206,6 +215,8 @@ class FusionResult:
     counts: dict[str, int]
     landmarks_world: np.ndarray
     seconds: float = 0.0
+    refused: bool = False
+    notes: tuple[str, ...] = ()
 
 
 # ----------------------------------------------------------------- GNSS factors
@@ -487,9 +498,11 @@ def _gyro_residuals(
     )
     cam_R_body = np.asarray(s.body_T_cam, float)[:3, :3].T
 
-    def residuals(offset: float) -> np.ndarray:
+    def residuals(offset: float, keep: np.ndarray | None = None) -> np.ndarray:
         ta, tb = stamps[pair - 1] + offset, stamps[pair] + offset
         inside = (ta >= t[0]) & (tb <= t[-1])
+        if keep is not None:
+            inside &= np.isin(np.arange(len(pair)), keep)
         G = np.stack(
             [np.interp(tb, t, cum[:, a]) - np.interp(ta, t, cum[:, a]) for a in range(3)], 1
         )
@@ -513,11 +526,13 @@ def _gnss_residuals(
     ant = world_T_cam[:, :3, 3] + world_T_cam[:, :3, :3] @ arm
     seen = np.nonzero(observed)[0]
 
-    def residuals(offset: float) -> np.ndarray:
+    def residuals(offset: float, keep: np.ndarray | None = None) -> np.ndarray:
         tv = tz - offset
         j = np.searchsorted(stamps[seen], tv)
         ok = (j > 0) & (j < len(seen))
         ok[ok] &= seen[j[ok]] - seen[j[ok] - 1] == 1  # between two observed neighbours
+        if keep is not None:
+            ok &= np.isin(np.arange(len(tz)), keep)
         if not ok.any():
             return np.zeros((0, 3)), np.zeros(0, np.int64)
         a, b = seen[j[ok] - 1], seen[j[ok]]
@@ -525,10 +540,15 @@ def _gnss_residuals(
         r = z[ok] - ((1 - u) * ant[a] + u * ant[b])
         r = r - np.median(r, axis=0)
         n = np.linalg.norm(r, axis=1, keepdims=True)
-        r = np.where(n > 5.0, r * 5.0 / np.maximum(n, 1e-9), r)  # multipath bounded
+        bound = GNSS_CLOCK_BOUND_M
+        r = np.where(n > bound, r * bound / np.maximum(n, 1e-9), r)  # multipath bounded
         return r, np.nonzero(ok)[0]
 
     return residuals
+
+
+# The GNSS clock scan bounds each residual's norm to this [m] (multipath).
+GNSS_CLOCK_BOUND_M = 5.0
 
 
 def _golden(f, a: float, b: float, tol: float = 1e-5) -> float:
@@ -548,21 +568,68 @@ def _golden(f, a: float, b: float, tol: float = 1e-5) -> float:
     return 0.5 * (a + b)
 
 
-def _scan_and_refine(residuals, s: FusionSettings, source: str) -> ClockOffset:
+def _gauss_newton_sigma(
+    residuals, best: float, r0: np.ndarray, ids: np.ndarray, noise_sigma: float | None
+) -> float:
+    """The offset's sigma from the cost's curvature, on the items in all three evaluations.
+
+    Moving the offset by +-h can move a fix or a frame pair across the edge of
+    the overlap (GNSS: between two observed frames; gyro: inside the IMU's
+    span), so the residuals at best+-h may hold other items than at best: the
+    derivative is taken on the items common to the three (NaN when none).
+    The residuals' scale is their own RMS, at least ``noise_sigma`` when given
+    (the fixes' claimed sigma: a fit to few fixes looks better than they are).
+    """
+    h = 1e-3
+    common = np.intersect1d(np.intersect1d(ids, residuals(best + h)[1]), residuals(best - h)[1])
+    if len(common) == 0:
+        return float("nan")
+    # The mean/median each residual function removes is over the items it has:
+    # the same items at the three offsets, else it jumps when one item enters.
+    (r, _), (rp, _), (rm, _) = (residuals(o, common) for o in (best, best + h, best - h))
+    jac = ((rp - rm) / (2 * h)).reshape(-1)
+    if not np.any(jac):
+        return float("inf")
+    var = float(np.sum(r**2)) / max(r.size - 4, 1)
+    if noise_sigma is not None:
+        var = max(var, noise_sigma**2)
+    return math.sqrt(var / float(jac @ jac))
+
+
+def _scan_and_refine(
+    residuals,
+    s: FusionSettings,
+    source: str,
+    noise_sigma: float | None = None,
+    missing_cost: float | None = None,
+) -> ClockOffset:
     """Coarse scan of the mean squared residual, golden refinement; the sigma by a
     block jackknife (the residuals are correlated in time: drift, shared poses),
-    at least the Gauss-Newton one.
+    at least the Gauss-Newton one (``_gauss_newton_sigma``). A minimum within
+    two steps of the scan's edge is no minimum: sigma inf.
 
-    ``residuals(offset)`` gives ((P, 3) residuals, (P,) their item ids).
+    ``residuals(offset, keep=None)`` gives ((P, 3) residuals, (P,) their item
+    ids, sorted), on the items ``keep`` only when given. With ``missing_cost``
+    an item the scan matches at some offset but not at this one costs that
+    (its bounded residual's worst): the mean over fewer items would favour the
+    offsets where the fixes barely overlap the frames (a GNSS-only scan then
+    ends at its edge).
     """
+    grid = np.arange(-s.clock_search_s, s.clock_search_s + 0.5 * s.clock_step_s, s.clock_step_s)
+    universe = np.zeros(0, np.int64)
+    if missing_cost is not None:
+        universe = np.unique(np.concatenate([residuals(float(o))[1] for o in grid]))
 
     def cost(offset: float, drop: np.ndarray | None = None) -> float:
         r, ids = residuals(offset)
         if drop is not None:
             r = r[~np.isin(ids, drop)]
-        return float(np.mean(r**2)) if r.size else float("inf")
-
-    grid = np.arange(-s.clock_search_s, s.clock_search_s + 0.5 * s.clock_step_s, s.clock_step_s)
+        if missing_cost is None:
+            return float(np.mean(r**2)) if r.size else float("inf")
+        n_all = len(universe) - (0 if drop is None else int(np.isin(universe, drop).sum()))
+        if not r.size or n_all == 0:
+            return float("inf")
+        return (float(np.sum(r**2)) + (n_all - len(r)) * missing_cost) / (3 * n_all)
 
     def scan(drop: np.ndarray | None = None) -> float:
         costs = np.array([cost(float(o), drop) for o in grid])
@@ -576,12 +643,11 @@ def _scan_and_refine(residuals, s: FusionSettings, source: str) -> ClockOffset:
     if not math.isfinite(best):
         log.warning("clock offset: no overlap of telemetry and vision; using 0")
         return ClockOffset(0.0, float("nan"), source)
+    if abs(best) >= s.clock_search_s - 2.5 * s.clock_step_s:
+        log.warning("clock offset: the scan's best %+.3f s is at its edge; not determined", best)
+        return ClockOffset(best, float("inf"), source)
     r0, ids = residuals(best)
-    h = 1e-3
-    jac = ((residuals(best + h)[0] - residuals(best - h)[0]) / (2 * h)).reshape(-1)
-    gn = float("nan")
-    if r0.size and len(jac) == r0.size and np.any(jac):
-        gn = math.sqrt(float(np.sum(r0**2)) / max(r0.size - 4, 1) / float(jac @ jac))
+    gn = _gauss_newton_sigma(residuals, best, r0, ids, noise_sigma)
     if len(ids) < 2 * JACKKNIFE_BLOCKS:
         return ClockOffset(best, gn, source)
     est = np.array([scan(b) for b in np.array_split(np.unique(ids), JACKKNIFE_BLOCKS)])
@@ -591,6 +657,60 @@ def _scan_and_refine(residuals, s: FusionSettings, source: str) -> ClockOffset:
 
 # Contiguous blocks of the clock residuals left out in turn for the offset's sigma.
 JACKKNIFE_BLOCKS = 10
+
+
+def _gnss_sigma_h(sigma_h_m: np.ndarray, s: FusionSettings) -> float:
+    """The fixes' typical horizontal sigma [m] (median claimed, at least the floor)."""
+    return max(float(np.median(sigma_h_m)), s.gnss_min_sigma_m) if len(sigma_h_m) else math.inf
+
+
+def _gnss_speed(telemetry: Telemetry, sign_map: SignMap, baseline_s: float = 2.0) -> float:
+    """The fixes' 75th-percentile speed over ``baseline_s`` [m/s] (0 without GNSS).
+
+    Over the whole flight (the fused GNSS matters most where no sign is seen,
+    and the vision poses there are a guess); the baseline keeps white noise
+    from reading as speed; noise left makes it larger: the stricter limit.
+    """
+    g = telemetry.gnss
+    if g is None or len(g) < 2 or sign_map.origin is None:
+        return 0.0
+    t = np.asarray(g.t_s, float)
+    z = enu_from_geodetic(sign_map.origin, g.lat_deg, g.lon_deg, g.height_m)
+    j = np.searchsorted(t, t + baseline_s)
+    ok = j < len(t)
+    if not ok.any():
+        j, ok = np.full(len(t), len(t) - 1), np.arange(len(t)) == 0
+    dt = np.maximum(t[j[ok]] - t[ok], 1e-6)
+    v = np.linalg.norm((z[j[ok]] - z[ok])[:, :2], axis=1) / dt
+    return float(np.percentile(v, 75))
+
+
+def clock_shift_limit_s(
+    world_T_cam: np.ndarray,
+    stamps_s: np.ndarray,
+    observed: np.ndarray,
+    sigma_h_m: float,
+    s,
+    gnss_speed_m_s: float = 0.0,
+) -> float:
+    """The largest clock sigma [s] the fusion accepts on this flight.
+
+    A clock error dt puts every fix v dt along the track from where it was
+    taken; the fused graph has no clock state, so that shift is read as GNSS
+    error it does not know of, and the fused sigmas do not include it. Allowed:
+    ``clock_max_shift`` times the fixes' sigma at the flight's fast speed: the
+    90th percentile of the vision speed over observed frames or the GNSS
+    track's speed (``_gnss_speed``), whichever is larger, at least 0.1 m/s.
+    Without GNSS the floor ``gnss_min_sigma_m`` stands for the sigma.
+    """
+    seen = np.nonzero(observed)[0]
+    pair = seen[1:][np.diff(seen) == 1]
+    speed = max(gnss_speed_m_s, 0.1)
+    if len(pair):
+        dt = np.maximum(stamps_s[pair] - stamps_s[pair - 1], 1e-6)
+        v = np.linalg.norm(world_T_cam[pair, :3, 3] - world_T_cam[pair - 1, :3, 3], axis=1) / dt
+        speed = max(speed, float(np.percentile(v, 90)))
+    return s.clock_max_shift * sigma_h_m / speed
 
 
 def estimate_clock_offset(
@@ -610,6 +730,8 @@ def estimate_clock_offset(
     s = settings
     if s.clock_offset_s is not None:
         return ClockOffset(float(s.clock_offset_s), 0.0, "fixed")
+    if telemetry.clock_is_video:
+        return ClockOffset(0.0, 0.0, "video")
     if s.use_imu and telemetry.imu is not None and len(telemetry.imu) > 1:
         res = _gyro_residuals(world_T_cam, stamps_s, observed, telemetry.imu, s)
         return _scan_and_refine(res, s, "gyro")
@@ -617,7 +739,8 @@ def estimate_clock_offset(
     if s.use_gnss and g is not None and len(g) > 1 and sign_map.origin is not None:
         z = enu_from_geodetic(sign_map.origin, g.lat_deg, g.lon_deg, g.height_m)
         res = _gnss_residuals(world_T_cam, stamps_s, observed, z, np.asarray(g.t_s, float), s)
-        return _scan_and_refine(res, s, "gnss")
+        sig = _gnss_sigma_h(g.sigma_h_m, s)
+        return _scan_and_refine(res, s, "gnss", sig, GNSS_CLOCK_BOUND_M**2)
     return ClockOffset(0.0, float("nan"), "none")
 
 
@@ -807,10 +930,20 @@ def _unestimated_clock(s: FusionSettings) -> ClockOffset:
 
 
 def _vision_only(
-    vision: SmootherResult, kept, camera, stamps, s: FusionSettings, t0: float, failed: int = 0
+    vision: SmootherResult,
+    kept,
+    camera,
+    stamps,
+    s: FusionSettings,
+    t0: float,
+    failed: int = 0,
+    refused: str = "",
+    clock: ClockOffset | None = None,
 ):
-    """The vision result as a FusionResult (no telemetry, or the fused solve failed)."""
+    """The vision result as a FusionResult (no telemetry, the fused solve failed, or
+    the fusion refused with the note ``refused``)."""
     n = len(vision.world_T_cam)
+    extra = {"failed": failed} if failed else {}
     return FusionResult(
         world_T_cam=vision.world_T_cam.copy(),
         sigma_xyz=vision.sigma_xyz.copy(),
@@ -826,10 +959,44 @@ def _vision_only(
         gnss_drift_m=np.zeros((0, 3)),
         gnss_used=np.zeros(0, np.int64),
         gnss_outlier=np.zeros(0, bool),
-        clock=_unestimated_clock(s),
-        counts={"frames": n, **({"failed": failed} if failed else {})},
+        clock=clock or _unestimated_clock(s),
+        counts={"frames": n, **extra, **({"refused": 1} if refused else {})},
         landmarks_world=vision.landmarks_world.copy(),
         seconds=time.perf_counter() - t0,
+        refused=bool(refused),
+        notes=(refused,) if refused else (),
+    )
+
+
+_CLOCK_FROM = {"gnss": "from GNSS alone", "gyro": "from the gyro", "none": "(nothing to scan)"}
+
+
+def _clock_refusal(
+    clock: ClockOffset, vision: SmootherResult, stamps, telemetry: Telemetry, sign_map, s
+) -> str:
+    """The note refusing the fusion on an undetermined clock, or "" when it is good enough."""
+    if clock.source in ("fixed", "video"):
+        return ""
+    g = telemetry.gnss
+    sigma_h = _gnss_sigma_h(g.sigma_h_m, s) if g is not None and len(g) else s.gnss_min_sigma_m
+    v = _gnss_speed(telemetry, sign_map)
+    limit = clock_shift_limit_s(vision.world_T_cam, stamps, vision.observed, sigma_h, s, v)
+    if math.isfinite(clock.sigma_s) and clock.sigma_s <= limit:
+        return ""
+    pm = f"+-{clock.sigma_s:.2f} s" if math.isfinite(clock.sigma_s) else "no minimum"
+    return (
+        f"fused: not computed: the clock offset between the video and {telemetry.source} is not "
+        f"determined {_CLOCK_FROM.get(clock.source, '')} ({pm}, {limit:.2f} s needed at this "
+        "flight's speed): give --telemetry-offset S; the results are vision only"
+    )
+
+
+def _video_clock_note(clock: ClockOffset, telemetry: Telemetry) -> tuple[str, ...]:
+    if clock.source != "video":
+        return ()
+    return (
+        f"clock: {telemetry.source} is on the video's own clock (one subtitle per frame): "
+        "offset 0, not estimated (--telemetry-offset S to change it)",
     )
 
 
@@ -915,6 +1082,10 @@ def fuse_trajectory(
     clock = estimate_clock_offset(
         vision.world_T_cam, stamps, vision.observed, telemetry, sign_map, s
     )
+    refusal = _clock_refusal(clock, vision, stamps, telemetry, sign_map, s)
+    if refusal:
+        log.warning("%s", refusal)
+        return _vision_only(vision, kept, camera, stamps, s, t0, refused=refusal, clock=clock)
     tel_stamps = stamps + clock.offset_s
     use_imu = s.use_imu and telemetry.imu is not None and len(telemetry.imu) > 1
     p = _Problem(
@@ -937,4 +1108,6 @@ def fuse_trajectory(
     except RuntimeError as exc:  # gtsam: an indeterminant system; the flight goes on
         log.warning("fusion failed (%s); the fused poses are the vision-only ones", exc)
         return _vision_only(vision, kept, camera, stamps, s, t0, failed=1)
-    return _fused_result(p, g, result, clock, camera, t0)
+    return replace(
+        _fused_result(p, g, result, clock, camera, t0), notes=_video_clock_note(clock, telemetry)
+    )

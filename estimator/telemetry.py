@@ -98,6 +98,9 @@ class Telemetry:
         gimbal: gimbal angles, or None.
         skipped: samples dropped by the reader, counted by reason
             (``"garbled"``, ``"gap"``, ``"non_finite"``, ...): never a NaN downstream.
+        clock_is_video: the times are on the video's own clock by construction
+            (a DJI SRT sidecar: one subtitle per frame), so the offset is 0
+            unless one is given; not estimated.
     """
 
     source: str
@@ -105,6 +108,7 @@ class Telemetry:
     imu: ImuSamples | None = None
     gimbal: GimbalAngles | None = None
     skipped: dict[str, int] = field(default_factory=dict)
+    clock_is_video: bool = False
 
     def span_s(self) -> tuple[float, float] | None:
         """(first, last) telemetry time over all streams [s], or None when empty."""

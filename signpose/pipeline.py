@@ -1455,8 +1455,8 @@ def _run_geo(s: RunSettings, sign_map: SignMap, estimate: EstimateResult, tel) -
         gnss = telemetry.gnss
         given = tel.request.clock_offset_s
         offset, outlier = fused_clock_and_outliers(estimate.fusion, gnss, given)
-        if estimate.fusion is not None:
-            tel.notes.append(fusion_summary(estimate.fusion))
+        if (f := estimate.fusion) is not None:  # a refused fusion: its note only
+            tel.notes.extend(f.notes if f.refused else (fusion_summary(f), *f.notes))
     geo = run_geo(sign_map, estimate.methods, gnss, offset, outlier, required=s.geo)
     if geo.note and telemetry is not None:
         tel.notes.append(f"note: {geo.note}")

@@ -140,8 +140,8 @@ def _geo_files(args, sign_map, result, telemetry, request, notes: list[str]) -> 
     offset, outlier = 0.0, None
     if gnss is not None:
         offset, outlier = fused_clock_and_outliers(result.fusion, gnss, request.clock_offset_s)
-    if result.fusion is not None:
-        notes.append(fusion_summary(result.fusion))
+    if (f := result.fusion) is not None:  # a refused fusion: its note only
+        notes.extend(f.notes if f.refused else (fusion_summary(f), *f.notes))
     geo = run_geo(sign_map, result.methods, gnss, offset, outlier, required=args.geo)
     if geo.note and telemetry is not None:
         notes.append(f"note: {geo.note}")

@@ -153,4 +153,4 @@ def read_srt(path: str | Path, video_start_s: float = 0.0) -> Telemetry:
         )
     g = np.array(gimbal_rows, dtype=float).reshape(-1, 4)
     gimbal = gimbal_angles(g[:, 0], g[:, 1], g[:, 2], g[:, 3], skipped) if len(g) else None
-    return Telemetry(source=str(p), gnss=gnss, gimbal=gimbal, skipped=skipped)
+    return Telemetry(source=str(p), gnss=gnss, gimbal=gimbal, skipped=skipped, clock_is_video=True)

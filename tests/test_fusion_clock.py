@@ -1,0 +1,158 @@
+"""The fusion's clock policy (issue 17): a GNSS-only scan does not crash, an SRT is on the
+video's clock, a guessed clock is refused with one note instead of a silent fused result."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from signpose.estimator.camera import pinhole_camera
+from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
+from signpose.estimator.fusion import (
+    FusionSettings,
+    clock_shift_limit_s,
+    estimate_clock_offset,
+    fuse_trajectory,
+    vision_solve,
+)
+from signpose.estimator.telemetry import GnssFixes, Telemetry
+from signpose.maps.geodesy import GeoOrigin, geodetic_from_enu
+from signpose.maps.loader import bundled_map_path, load_map
+
+from signpose.io.telemetry_srt import read_srt
+from signpose.sim.observations import synthesize_observations
+from signpose.sim.telemetry import (
+    TelemetrySimSettings,
+    away_and_back,
+    default_body_T_cam,
+    simulate_telemetry,
+)
+
+ORIGIN = GeoOrigin(47.0, 8.0, 500.0)
+
+
+def _line_flight(n: int, fps: float, speed: float, turn: bool):
+    """(N, 4, 4) poses along x at ``speed`` [m/s] (with ``turn``: a sideways swing)."""
+    t = np.arange(n) / fps
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = speed * t
+    if turn:
+        T[:, 1, 3] = 6.0 * np.sin(2 * np.pi * t / 4.0)
+    return t, T
+
+
+def _gnss(t_tel: np.ndarray, enu: np.ndarray, sigma: float, rng) -> Telemetry:
+    noisy = enu + rng.normal(0.0, sigma, enu.shape)
+    lat, lon, h = geodetic_from_enu(ORIGIN, noisy)
+    n = len(t_tel)
+    fixes = GnssFixes(t_tel, lat, lon, h, np.full(n, sigma), np.full(n, 2 * sigma))
+    return Telemetry(source="gnss.csv", gnss=fixes)
+
+
+@pytest.fixture(scope="module")
+def sign_map():
+    return replace(load_map(bundled_map_path()), origin=ORIGIN)
+
+
+def test_gnss_only_scan_whose_fixes_leave_the_overlap_does_not_crash(sign_map):
+    """Regression: the Gauss-Newton step compared residuals of 13 and 12 fixes (ValueError)."""
+    t, T = _line_flight(90, 30.0, 3.0, turn=False)  # 3 s of video, fixes at 10 Hz
+    tg = np.arange(0.037, 3.0, 0.1)
+    enu = np.stack([np.interp(tg, t, T[:, 0, 3]), 0 * tg, 0 * tg], 1)
+    tel = _gnss(tg + 0.25, enu, 1.5, np.random.default_rng(0))
+    s = FusionSettings(use_imu=False)
+    c = estimate_clock_offset(T, t, np.ones(len(t), bool), tel, sign_map, s)
+    assert c.source == "gnss" and math.isfinite(c.offset_s)
+    # A straight line at constant speed: a time shift is a position offset, which the
+    # GNSS error absorbs; the scan must not claim to know the clock.
+    limit = clock_shift_limit_s(T, t, np.ones(len(t), bool), 1.5, s)
+    assert not c.sigma_s <= limit
+
+
+def test_gnss_only_clock_with_turns_is_found_within_its_sigma(sign_map):
+    t, T = _line_flight(200, 10.0, 3.0, turn=True)
+    tg = np.arange(0.05, 20.0, 0.1)
+    enu = np.stack([np.interp(tg, t, T[:, k, 3]) for k in range(3)], 1)
+    tel = _gnss(tg + 0.4, enu, 0.5, np.random.default_rng(1))
+    c = estimate_clock_offset(
+        T, t, np.ones(len(t), bool), tel, sign_map, FusionSettings(use_imu=False)
+    )
+    assert c.source == "gnss" and 0 < c.sigma_s < 0.05
+    assert abs(c.offset_s - 0.4) < 3 * c.sigma_s
+
+
+def test_an_srt_sidecar_is_on_the_video_clock_unless_an_offset_is_given(sign_map, tmp_path):
+    srt = tmp_path / "clip.SRT"
+    srt.write_text(
+        "1\n00:00:00,000 --> 00:00:00,033\n[latitude: 47.0] [longitude: 8.0] [abs_alt: 500.0]\n\n"
+        "2\n00:00:00,033 --> 00:00:00,066\n[latitude: 47.0] [longitude: 8.00001] [abs_alt: 500]\n"
+    )
+    tel = read_srt(srt, video_start_s=10.0)
+    assert tel.clock_is_video
+    t, T = _line_flight(3, 30.0, 1.0, turn=False)
+    args = (T, t + 10.0, np.ones(3, bool), tel, sign_map)
+    c = estimate_clock_offset(*args, FusionSettings())
+    assert (c.offset_s, c.sigma_s, c.source) == (0.0, 0.0, "video")
+    c = estimate_clock_offset(*args, FusionSettings(clock_offset_s=0.2))
+    assert (c.offset_s, c.source) == (0.2, "fixed")
+    assert not Telemetry(source="x.csv").clock_is_video  # other readers: estimated
+
+
+@pytest.fixture(scope="module")
+def flight(sign_map):
+    """A 30 s flight at 2 fps (GNSS 10 Hz, no IMU), telemetry 0.3 s late."""
+    camera = pinhole_camera(1920, 1080, 60.0)
+    truth = away_and_back(sign_map, seed=1)
+    gt = truth.trajectory(2.0)
+    frames, _ = synthesize_observations(sign_map, camera, gt, np.random.default_rng(5))
+    sim = TelemetrySimSettings(clock_offset_s=0.3)
+    tel, _ = simulate_telemetry(truth, sign_map, np.random.default_rng(6), sim)
+    settings = FusionSettings(
+        use_imu=False,
+        cam_t_antenna_m=sim.cam_t_antenna_m,
+        body_T_cam=tuple(map(tuple, default_body_T_cam())),
+    )
+    vision = vision_solve(frames, sign_map, camera, gt.stamps_s, settings.smoother)
+    return dict(
+        camera=camera, gt=gt, frames=frames, tel=replace(tel, imu=None), s=settings, v=vision
+    )
+
+
+def test_a_guessed_clock_refuses_the_fusion_with_one_note(flight, sign_map):
+    f = flight
+    r = fuse_trajectory(
+        f["frames"], sign_map, f["camera"], f["gt"].stamps_s, f["tel"], f["s"], f["v"]
+    )
+    assert r.refused and r.counts["refused"] == 1 and r.clock.source == "gnss"
+    assert np.array_equal(r.world_T_cam, f["v"].world_T_cam)  # the vision poses, as they were
+    (note,) = r.notes
+    assert "not determined from GNSS alone" in note and "give --telemetry-offset" in note
+    assert str(f["tel"].source) in note
+    given = fuse_trajectory(
+        f["frames"],
+        sign_map,
+        f["camera"],
+        f["gt"].stamps_s,
+        f["tel"],
+        replace(f["s"], clock_offset_s=0.3),
+        f["v"],
+    )
+    assert not given.refused and given.notes == () and given.counts["gnss_used"] > 100
+
+
+def test_estimate_trajectories_has_no_fused_method_on_a_guessed_clock(flight, sign_map):
+    f = flight
+    settings = EstimatorSettings(methods=("smoothed",), tune_motion=False)
+    r = estimate_trajectories(
+        f["frames"],
+        sign_map,
+        f["camera"],
+        settings,
+        progress=False,
+        telemetry=f["tel"],
+        fusion=f["s"],
+    )
+    assert "fused" not in r.methods and "smoothed" in r.methods
+    assert r.fusion is not None and r.fusion.refused
