@@ -157,3 +157,19 @@ def test_a_worker_that_dies_loses_only_its_chunk(real_flight, tmp_path):
     assert report["missing_frames"] == [{"start": 3, "stop": 6, "reason": reason}]
     assert report["problems"] == list(result.problems)
     assert result.coverage["pnp"] == pytest.approx(1.0)  # of the frames observed
+
+
+def test_a_source_read_in_order_only_gives_the_same_chunks(real_flight, tmp_path):
+    """A source that cannot be reopened (no spec) is chunked by frame count, inline: same bytes."""
+    sign_map = load_map(bundled_map_path())
+    settings = pipeline.ObserveSettings(workers=1, chunk_frames=3)
+    written = []
+    for spec in (True, False):
+        source = open_source(real_flight.frames_path)
+        if not spec:
+            source.spec = None
+        out = tmp_path / f"spec_{spec}.jsonl"
+        result = pipeline.observe(source, sign_map, real_flight.camera, settings, False, out)
+        assert result.full_frames >= 3  # a full-frame search at each chunk's start
+        written.append(out.read_bytes())
+    assert written[0] == written[1]
