@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
-from signpose.estimator.fusion import FusionResult, FusionSettings, fuse_trajectory
+from signpose.estimator.fusion import FusionResult, FusionSettings, fuse_trajectory, on_smoother
 from signpose.estimator.perframe import (
     FramePose,
     PerFrameSettings,
@@ -691,7 +691,8 @@ def _smoothed(
     down, mis = _outliers(meas, r, frames, sign_map, camera, s, gated)
     fused = None
     if telemetry is not None:  # the smoothed graph with the drone's sensors, from its solution
-        fused = fuse_trajectory(frames, sign_map, camera, stamps, telemetry, fusion, r)
+        on_run = on_smoother(fusion, p.s.smoother)  # the run's landmarks, tuned motion prior
+        fused = fuse_trajectory(frames, sign_map, camera, stamps, telemetry, on_run, r)
         if not fused.refused:  # refused: clock offset not determined (fused.notes says why)
             methods["fused"] = _from_smoother("fused", stamps, fused, status=fused.status)
         timing["fused"] = fused.seconds

@@ -155,6 +155,20 @@ class FusionSettings:
     lm_max_iterations: int = 100
 
 
+def on_smoother(settings: FusionSettings | None, smoother: SmootherSettings) -> FusionSettings:
+    """``settings`` with the vision smoother's own settings (the run's landmarks, e.g.
+    fixed signs, its motion prior as tuned on the flight, its sigmas switch), the
+    fusion's projection kernel kept (``settings.smoother.kernel``, ``tukey_k``).
+
+    Without it the fused graph had the default constant-velocity prior (2 m/s^2):
+    on a 30 m/s flight whose tuned prior was 32 m/s^2 it pulled the fused poses
+    up to 4.6 m from the truth where the vision ones were within 0.5 m.
+    """
+    s = settings or FusionSettings()
+    own = s.smoother
+    return replace(s, smoother=replace(smoother, kernel=own.kernel, tukey_k=own.tukey_k))
+
+
 @dataclass(frozen=True)
 class ClockOffset:
     """The telemetry-minus-video offset [s] and its standard deviation (0 when fixed).

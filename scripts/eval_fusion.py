@@ -165,9 +165,11 @@ def run_flight(seed: int, fps: float, offset: float, quick: bool) -> dict:
         "gnss burst-free": gnss_only(tel_clean, truth_T, stamps, offset, sim.cam_t_antenna_m),
     }
     fused = {}
+    no_imu = replace(fs, use_imu=False, clock_offset_s=offset)
     cases = [
-        ("vision+gnss", replace(fs, use_imu=False), tel),
-        ("vision+gnss clock given", replace(fs, use_imu=False, clock_offset_s=offset), tel),
+        ("vision+gnss", replace(fs, use_imu=False), tel),  # clock left to the GNSS: refused
+        ("vision+gnss clock given", no_imu, tel),
+        ("vision+gnss clock given burst-free", no_imu, tel_clean),
         ("vision+gnss+imu", fs, tel),
     ]
     cases.append(("vision+gnss+imu burst-free", fs, tel_clean))
@@ -177,6 +179,7 @@ def run_flight(seed: int, fps: float, offset: float, quick: bool) -> dict:
         )
         runs[name] = fused[name].world_T_cam[:, :3, 3]
     errors = {k: err(v) for k, v in runs.items()}
+    honesty = {k: sigma_honesty(errors[k], r, seen) for k, r in fused.items() if not r.refused}
     full = fused["vision+gnss+imu"]
     # Frames whose nearest fix is in a burst.
     tv = truth.gnss_t_s - offset
@@ -216,7 +219,33 @@ def run_flight(seed: int, fps: float, offset: float, quick: bool) -> dict:
         "statuses": {
             st: sum(1 for x in full.status if x.value == st) for st in ("ok", "weak", "bridged")
         },
+        "refused": {k: r.refused for k, r in fused.items()},
+        "notes": {k: list(r.notes) for k, r in fused.items() if r.notes},
+        "honesty": honesty,
     }
+
+
+def sigma_honesty(error: np.ndarray, fused, seen: np.ndarray) -> dict:
+    """Per region, the share of poses whose error exceeds 3 of their own sigmas (the
+    norm of the marginal's x, y, z sigmas), and that share among ok/weak poses only
+    (bridged ones say they are a bridge); the statuses per region."""
+    sig = np.linalg.norm(fused.sigma_xyz, axis=1)
+    beyond = ~(error <= 3 * sig)  # a NaN sigma counts as beyond
+    flagged = np.array([st.value in ("ok", "weak") for st in fused.status])
+    out = {}
+    for region, mask in (("seen", seen), ("gap", ~seen), ("all", np.ones_like(seen))):
+        ow = mask & flagged
+        out[region] = {
+            "beyond_3_sigma": float(np.mean(beyond[mask])) if mask.any() else 0.0,
+            "ok_weak": int(ow.sum()),
+            "ok_weak_beyond_3_sigma": float(np.mean(beyond[ow])) if ow.any() else 0.0,
+            "statuses": {
+                st: int(sum(1 for i in np.nonzero(mask)[0] if fused.status[i].value == st))
+                for st in ("ok", "weak", "bridged", "suspect")
+            },
+            "sigma_median_m": float(np.median(sig[mask])) if mask.any() else float("nan"),
+        }
+    return out
 
 
 def clock_sweep(seed: int, fps: float, offsets: list[float]) -> list[dict]:
@@ -336,6 +365,16 @@ def main(argv=None) -> int:
         for region in ("seen", "gap"):
             vals = ", ".join(f"{m} {v:.3f}" for m, v in f[f"rms_{region}_m"].items())
             print(f"  RMS {'with signs' if region == 'seen' else 'sign-free'} [m]: {vals}")
+        for name, h in f["honesty"].items():
+            parts = [
+                f"{region} {100 * h[region]['beyond_3_sigma']:.1f} % beyond 3 sigma "
+                f"(ok/weak {100 * h[region]['ok_weak_beyond_3_sigma']:.1f} % of "
+                f"{h[region]['ok_weak']}; sigma median {h[region]['sigma_median_m']:.2f} m)"
+                for region in ("seen", "gap")
+            ]
+            print(f"  {name}: {'; '.join(parts)}")
+        for name, notes in f["notes"].items():
+            print(f"  {name}: {' '.join(notes)}")
     clocks = [c for k in range(seeds) for c in clock_sweep(k, args.fps, offsets)]
     for c in clocks:
         err_ms = 1e3 * (c["est_s"] - c["true_s"])

@@ -15,8 +15,10 @@ from signpose.estimator.fusion import (
     clock_shift_limit_s,
     estimate_clock_offset,
     fuse_trajectory,
+    on_smoother,
     vision_solve,
 )
+from signpose.estimator.smoother import SmootherSettings
 from signpose.estimator.telemetry import GnssFixes, Telemetry
 from signpose.maps.geodesy import GeoOrigin, geodetic_from_enu
 from signpose.maps.loader import bundled_map_path, load_map
@@ -115,9 +117,11 @@ def flight(sign_map):
         body_T_cam=tuple(map(tuple, default_body_T_cam())),
     )
     vision = vision_solve(frames, sign_map, camera, gt.stamps_s, settings.smoother)
-    return dict(
-        camera=camera, gt=gt, frames=frames, tel=replace(tel, imu=None), s=settings, v=vision
+    tel = replace(tel, imu=None)
+    given = fuse_trajectory(
+        frames, sign_map, camera, gt.stamps_s, tel, replace(settings, clock_offset_s=0.3), vision
     )
+    return dict(camera=camera, gt=gt, frames=frames, tel=tel, s=settings, v=vision, given=given)
 
 
 def test_a_guessed_clock_refuses_the_fusion_with_one_note(flight, sign_map):
@@ -130,16 +134,35 @@ def test_a_guessed_clock_refuses_the_fusion_with_one_note(flight, sign_map):
     (note,) = r.notes
     assert "not determined from GNSS alone" in note and "give --telemetry-offset" in note
     assert str(f["tel"].source) in note
-    given = fuse_trajectory(
-        f["frames"],
-        sign_map,
-        f["camera"],
-        f["gt"].stamps_s,
-        f["tel"],
-        replace(f["s"], clock_offset_s=0.3),
-        f["v"],
-    )
+    given = f["given"]
     assert not given.refused and given.notes == () and given.counts["gnss_used"] > 100
+
+
+def test_without_imu_gnss_does_not_pull_the_poses_where_signs_are_seen(flight):
+    """No IMU, clock given: where signs are seen the fused pose is within the vision pose's
+    noise; where none is, the pose is a bridge with a GNSS-sized sigma, never 'ok'."""
+    f = flight
+    r, v, truth = f["given"], f["v"], f["gt"].world_t_cam
+    seen = v.observed
+    assert 10 < seen.sum() < len(seen) - 10  # both kinds of frames
+    moved = np.linalg.norm(r.world_T_cam[seen, :3, 3] - v.world_T_cam[seen, :3, 3], axis=1)
+    sigma_v = np.linalg.norm(v.sigma_xyz[seen], axis=1)
+    assert np.all(moved <= 3 * sigma_v)
+    err_f = np.linalg.norm(r.world_T_cam[seen, :3, 3] - truth[seen], axis=1)
+    err_v = np.linalg.norm(v.world_T_cam[seen, :3, 3] - truth[seen], axis=1)
+    assert np.sqrt(np.mean(err_f**2)) <= 1.05 * np.sqrt(np.mean(err_v**2))
+    gap = ~seen
+    assert all(r.status[i].value in ("weak", "bridged") for i in np.nonzero(gap)[0])
+    sig = np.linalg.norm(r.sigma_xyz[gap], axis=1)
+    assert np.all(np.isfinite(sig)) and np.median(sig) > 0.5  # GNSS-sized, not the signs'
+
+
+def test_the_fused_graph_takes_the_runs_smoother_settings():
+    run = SmootherSettings(landmarks="fixed", cv_sigma_acc=32.0, kernel="huber", tukey_k=9.0)
+    s = on_smoother(FusionSettings(clock_offset_s=0.1), run)
+    assert s.clock_offset_s == 0.1
+    assert (s.smoother.landmarks, s.smoother.cv_sigma_acc) == ("fixed", 32.0)
+    assert (s.smoother.kernel, s.smoother.tukey_k) == (FusionSettings().smoother.kernel, 4.685)
 
 
 def test_estimate_trajectories_has_no_fused_method_on_a_guessed_clock(flight, sign_map):
