@@ -1458,8 +1458,13 @@ def _occlusion(
     inside = _inside(_project(image_H_sign, _OUTER_RING), w, h, 0.0)
     pattern = list(reading.code)
     white = [0, 1] + [1 + k for k in range(1, N_BITS + 1) if pattern[k - 1] == "1"]
+    # The rim's dark runs, sampled once for both kinds of band (none wanted
+    # when neither looks: no ring inside the crop and an intact outline).
+    runs = []
+    if inside or not outline_intact:
+        runs = occlusion.rim_runs(g, image_H_sign, reading.black, reading.white)
     bands = occlusion.dark_bands(
-        g, image_H_sign, reading.black, reading.white, inside, _PART_CENTRES[white]
+        g, image_H_sign, reading.black, reading.white, inside, _PART_CENTRES[white], runs
     )
     if outline_intact:
         bands = [b for b in bands if b.in_front]
@@ -1467,7 +1472,7 @@ def _occlusion(
         # A black-read slot under a bar whose other end is lost in the dark.
         zeros = [1 + k for k in range(1, N_BITS + 1) if pattern[k - 1] == "0"]
         bands += occlusion.bars_through(
-            g, image_H_sign, reading.black, reading.white, _PART_CENTRES[zeros]
+            g, image_H_sign, reading.black, reading.white, _PART_CENTRES[zeros], runs
         )
     inside_white = occlusion.interior_min_white(
         g, image_H_sign, _PART_QUADS[white], reading.black, reading.white, np.equal(white, 1)

@@ -183,7 +183,7 @@ def _dark_runs(dark: list[bool], level: list[float]) -> list[tuple[float, float,
     return out
 
 
-def _rim_runs(
+def rim_runs(
     gray: np.ndarray, image_H_sign: np.ndarray, black: float, white: float
 ) -> list[tuple[float, float, float]]:
     """Runs of the rings just outside the rim where both are at most a threshold
@@ -250,6 +250,7 @@ def bars_through(
     black: float,
     white: float,
     targets: np.ndarray,
+    runs: list[tuple[float, float, float]] | None = None,
 ) -> list[Band]:
     """Bars seen at one rim crossing only that would run over ``targets``.
 
@@ -267,11 +268,9 @@ def bars_through(
     if len(targets) == 0:
         return []
     contrast = max(white - black, 1e-6)
-    runs = [
-        r
-        for r in _rim_runs(gray, image_H_sign, black, white)
-        if _SINGLE_MIN_HALF <= 0.5 * math.sin(r[1]) <= _MAX_BAR_HALF_WIDTH
-    ]
+    if runs is None:
+        runs = rim_runs(gray, image_H_sign, black, white)
+    runs = [r for r in runs if _SINGLE_MIN_HALF <= 0.5 * math.sin(r[1]) <= _MAX_BAR_HALF_WIDTH]
     if not runs:
         return []
     # Every (run, target) chord at once: ends a (the run) and b on the rim.
@@ -364,6 +363,7 @@ def dark_bands(
     white: float,
     inside: bool,
     white_centres: np.ndarray,
+    runs: list[tuple[float, float, float]] | None = None,
 ) -> list[Band]:
     """Dark bands in front of the face: two dark rim runs joined by a dark chord.
 
@@ -381,13 +381,14 @@ def dark_bands(
         black, white: the face's gray levels.
         inside: whether the outer ring lies inside the crop (else no bands).
         white_centres: (P, 2) centres of the parts the reading sees white [diameters].
+        runs: ``rim_runs`` of the same reading, when already sampled.
     """
     if not inside:
         return []
     contrast = max(white - black, 1e-6)
     # Several thresholds: a black bar in front of a gray background is a short
     # run only below the background's level.
-    runs = _rim_runs(gray, image_H_sign, black, white)
+    runs = rim_runs(gray, image_H_sign, black, white) if runs is None else runs
     if len(runs) < 2:
         return []
     ii, jj = np.triu_indices(len(runs), 1)
