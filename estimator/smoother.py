@@ -990,6 +990,14 @@ class _Isam2Run:
             )
             self.bias_key = new_bias
 
+    def _copy_segment(self, key: int) -> int:
+        """The segment whose frames use a landmark or bias copy (``_new_segment``'s keys)."""
+        sym = gtsam.Symbol(key)
+        c, index = chr(sym.chr()), int(sym.index())
+        if c in "lb":
+            return 0
+        return index if c == "c" else index // self.n_lm
+
     def _initial_guess(self, i: int, init_world_T_cam: np.ndarray | None) -> gtsam.Pose3:
         """The per-frame pose unless it is far from the motion model's prediction."""
         predicted = self.prev_pose
@@ -1084,12 +1092,23 @@ class _Isam2Run:
                 involved = f.keys()
                 (leave if any(key in old for key in involved) else keep).add(f)
         order = gtsam.Ordering()
+        # Each segment's frames, then its replaced copies: a frame's conditional
+        # then holds one generation of copies (frames first, all copies last:
+        # every generation in the window, 38 KB per frame).
+        by_segment: dict[int, list[int]] = {}
+        for k in copies:
+            by_segment.setdefault(self._copy_segment(k), []).append(k)
+        seg_len = max(int(self.s.isam_segment_frames), 1)
         for k in range(self.start, i):
             order.push_back(X(k))
             if self.cv:
                 order.push_back(V(k))
-        for k in copies:
-            order.push_back(k)
+            if k == i - 1 or (k + 1) // seg_len != k // seg_len:
+                for c in by_segment.pop(k // seg_len, []):
+                    order.push_back(c)
+        for rest in by_segment.values():
+            for c in rest:
+                order.push_back(c)
         net, marginal = leave.linearize(values).eliminatePartialSequential(order)
         self.written.append(_WrittenOut.of(net, values, i))
         for k in range(marginal.size()):
@@ -1219,11 +1238,13 @@ def _converge_in_blocks(run: _Isam2Run, result: gtsam.Values, n: int) -> tuple:
     """
     for block in reversed(run.written):
         block.back_substitute(result)
+    run.written.clear()  # memory: the sweeps hold their own conditionals
     cur = _sweep_values(run, result, n)
     first_pose = gtsam.Pose3(result.atPose3(X(0)))
     size = max(int(run.s.isam_window_frames), 1)
     blocks: list = []
     for _ in range(SWEEPS):
+        blocks = []  # the previous sweep's conditionals go before the next are made
         blocks = _sweep(run, cur, n, size, first_pose)
         nxt = gtsam.Values()
         for blk in reversed(blocks):
