@@ -90,6 +90,10 @@ class FlightJob:
         plots: write the PNG plots.
         cascade_path: detector cascade XML, or "" (the bundled one).
         fingerprint: digest of what the outputs are made from (kept in the done marker).
+        workers: observing processes within the flight (0 = as ``signpose run``);
+            1 when flights already run in parallel, so that ``--jobs 2`` is two
+            processes, not four. Not in the fingerprint: the output does not
+            depend on it.
     """
 
     flight: str
@@ -104,6 +108,7 @@ class FlightJob:
     plots: bool = True
     cascade_path: str = ""
     fingerprint: str = ""
+    workers: int = 0
 
 
 @dataclass(frozen=True)
@@ -244,7 +249,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             topic=job.topic or None,
             fps=job.fps or None,
             settings=RunSettings(
-                observe=ObserveSettings(cascade_path=job.cascade_path),
+                observe=ObserveSettings(cascade_path=job.cascade_path, workers=job.workers),
                 with_images=job.with_images,
                 plots=job.plots,
             ),
@@ -592,6 +597,8 @@ def run_batch(
         with_images=with_images,
         plots=plots,
         cascade_path=cascade,
+        # Flights in parallel (a pool or a cluster): each observes in its own process only.
+        workers=1 if (jobs > 1 or scheduler) else 0,
     )
     outcomes, todo = _jobs(inputs, names, map_path, out, options, force)
     bar = _flights_bar(len(inputs), len(outcomes), progress)

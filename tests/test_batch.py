@@ -153,3 +153,18 @@ def test_demo_end_to_end(monkeypatch, tmp_path, capsys):
     for name in ("result.mcap", "report.json", "trajectory_3d.png", "errors.png"):
         assert (out / name).is_file(), name
     assert (out / "flight" / "groundtruth.tum").is_file()
+
+
+def _workers_runner(job: batch.FlightJob) -> batch.FlightOutcome:
+    # frames carries the observing processes the flight was given.
+    return batch.FlightOutcome(job.flight, batch.FlightStatus.OK, frames=job.workers)
+
+
+@pytest.mark.parametrize(("jobs", "workers"), [(1, 0), (2, 1)])
+def test_parallel_flights_observe_in_one_process_each(tmp_path, jobs, workers):
+    # --jobs 2 means two processes on the machine, not two flights x two chunk workers.
+    inputs = [tmp_path / "f1.mp4", tmp_path / "f2.mp4"]
+    outcomes = batch.run_batch(
+        inputs, MAP, tmp_path / "out", jobs=jobs, progress=False, runner=_workers_runner
+    )
+    assert [o.frames for o in outcomes] == [workers, workers]
