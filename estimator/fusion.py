@@ -89,6 +89,24 @@ def _default_body_T_cam() -> tuple[tuple[float, ...], ...]:
     return ((0.0, 0.0, 1.0, 0.0), (-1.0, 0.0, 0.0, 0.0), (0.0, -1.0, 0.0, 0.0), (0, 0, 0, 1.0))
 
 
+def body_T_cam_from_mounting(roll_deg: float, pitch_deg: float, yaw_deg: float):
+    """(4, 4) the camera's pose in the IMU body (FLU) as nested tuples, at the IMU.
+
+    The angles turn the default mounting (camera looking along the body's x,
+    image right = body -y, image down = body -z) about the body's axes: the
+    camera's rotation is ``Rz(yaw) Ry(pitch) Rx(roll)`` times the default's, so
+    (0, 0, 0) is the default and pitch +45 looks 45 deg down (FLU: +y is left,
+    a positive turn about it takes x towards -z), yaw +90 looks left.
+    """
+    r, p, y = np.radians([roll_deg, pitch_deg, yaw_deg])
+    Rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    Ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
+    Rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    T = np.array(_default_body_T_cam(), float)
+    T[:3, :3] = Rz @ Ry @ Rx @ T[:3, :3]
+    return tuple(tuple(float(x) for x in row) for row in T)
+
+
 @dataclass(frozen=True)
 class FusionSettings:
     """What the fusion uses and how it weighs it.

@@ -16,6 +16,11 @@ vision+GNSS+IMU (``estimator.fusion``), each in the frames with signs and in
 the longest stretch without; vision+GNSS+IMU also on the same flight without
 multipath bursts.
 
+Without an IMU: vision+GNSS with the clock left to the GNSS (refused by the
+fusion: a guessed clock is not fused), and with the clock given, with and
+without bursts; per case and region the share of poses beyond 3 of their own
+sigmas (all, and among ok/weak poses: bridged ones say they are a bridge).
+
 Numbers: sign-free stretch error (<= 0.3 m RMS); with signs, fused vs vision
 (within 5 %); multipath rejected and the error in bursts vs burst-free (<=
 1.5x); clock offset error (<= 5 ms for offsets up to 1 s); WGS84 sign centres
@@ -271,6 +276,48 @@ def clock_sweep(seed: int, fps: float, offsets: list[float]) -> list[dict]:
     return out
 
 
+NO_IMU = ("vision+gnss clock given", "vision+gnss clock given burst-free")
+
+
+def no_imu_numbers(flights: list[dict]) -> list[dict]:
+    """Vision+GNSS without an IMU: GNSS does not pull the seen poses, honest statuses."""
+    ratio = [f["rms_seen_m"][c] / f["rms_seen_m"]["vision"] for f in flights for c in NO_IMU]
+    ok_weak = [
+        f["honesty"][c][region]["ok_weak_beyond_3_sigma"]
+        for f in flights
+        for c in NO_IMU
+        for region in ("seen", "gap")
+    ]
+    gap_ok = sum(f["honesty"][c]["gap"]["statuses"]["ok"] for f in flights for c in NO_IMU)
+
+    def bridged(case: str) -> float:
+        return max(f["honesty"][case]["gap"]["beyond_3_sigma"] for f in flights)
+
+    refused = sum(f["refused"]["vision+gnss"] for f in flights)
+    return [
+        {
+            "number": "no IMU, clock given, with signs: fused RMS / vision-only RMS, worst",
+            "value": max(ratio),
+            "limit": 1.05,
+            "pass": max(ratio) <= 1.05,
+            "beside": {"GNSS-only clock refused": f"{refused}/{len(flights)} flights"},
+        },
+        {
+            "number": "no IMU: share of ok/weak fused poses beyond 3 own sigmas, worst",
+            "value": max(ok_weak),
+            "limit": 0.01,
+            "pass": max(ok_weak) <= 0.01 and gap_ok == 0,
+            "beside": {
+                "'ok' poses in sign-free stretches": gap_ok,
+                "bridged poses beyond 3 sigma, worst flight, with bursts": round(
+                    bridged(NO_IMU[0]), 3
+                ),
+                "burst-free": round(bridged(NO_IMU[1]), 3),
+            },
+        },
+    ]
+
+
 def summarise(flights: list[dict], clocks: list[dict]) -> list[dict]:
     """The issue's Numbers with pass/fail (worst flight for each)."""
     gap_fused = [f["rms_gap_m"]["vision+gnss+imu"] for f in flights]
@@ -287,6 +334,7 @@ def summarise(flights: list[dict], clocks: list[dict]) -> list[dict]:
     geo = [g for f in flights for g in f["georef_graph_h_m"]]
     tri = [g for f in flights for g in f["georef_triangulated_h_m"]]
     return [
+        *no_imu_numbers(flights),
         {
             "number": "sign-free stretch, fused (GNSS+IMU) RMS [m], worst flight",
             "value": max(gap_fused),

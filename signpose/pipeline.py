@@ -236,6 +236,8 @@ class RunSettings:
         telemetry: the drone's GNSS/IMU to fuse (``--telemetry``), or None.
         geo: the user asked for the WGS84 outputs (``--geo``): a map without
             origin is refused; otherwise they are written when the map has one.
+        fusion: the fusion's geometry (``--antenna-offset``, ``--imu-to-camera``)
+            and weights; None: the defaults. Its clock is the telemetry's.
     """
 
     observe: ObserveSettings = field(default_factory=ObserveSettings)
@@ -248,6 +250,7 @@ class RunSettings:
     gt_offset_s: float = 0.0
     telemetry: TelemetryRequest | None = None
     geo: bool = False
+    fusion: FusionSettings | None = None
 
 
 @dataclass(frozen=True)
@@ -1441,7 +1444,7 @@ def _estimate(frames, sign_map: SignMap, cam: CameraModel, s: RunSettings, progr
         return estimate_trajectories(frames, sign_map, cam, s.estimator, progress)
     stamps = np.array([f.stamp_ns for f in frames], float) * 1e-9
     check_overlap(tel.telemetry, stamps, tel.request.clock_offset_s)
-    fusion = FusionSettings(clock_offset_s=tel.request.clock_offset_s)
+    fusion = replace(s.fusion or FusionSettings(), clock_offset_s=tel.request.clock_offset_s)
     return estimate_trajectories(
         frames, sign_map, cam, s.estimator, progress, telemetry=tel.telemetry, fusion=fusion
     )

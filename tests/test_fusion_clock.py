@@ -3,6 +3,7 @@ video's clock, a guessed clock is refused with one note instead of a silent fuse
 
 from __future__ import annotations
 
+import argparse
 import math
 from dataclasses import replace
 
@@ -12,6 +13,7 @@ from signpose.estimator.camera import pinhole_camera
 from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
 from signpose.estimator.fusion import (
     FusionSettings,
+    body_T_cam_from_mounting,
     clock_shift_limit_s,
     estimate_clock_offset,
     fuse_trajectory,
@@ -23,6 +25,9 @@ from signpose.estimator.telemetry import GnssFixes, Telemetry
 from signpose.maps.geodesy import GeoOrigin, geodetic_from_enu
 from signpose.maps.loader import bundled_map_path, load_map
 
+from signpose.cli import main
+from signpose.cli.run import fusion_settings
+from signpose.io.telemetry import TelemetryRequest
 from signpose.io.telemetry_srt import read_srt
 from signpose.sim.observations import synthesize_observations
 from signpose.sim.telemetry import (
@@ -179,3 +184,31 @@ def test_estimate_trajectories_has_no_fused_method_on_a_guessed_clock(flight, si
     )
     assert "fused" not in r.methods and "smoothed" in r.methods
     assert r.fusion is not None and r.fusion.refused
+
+
+def test_mounting_angles_turn_the_default_camera():
+    assert np.allclose(body_T_cam_from_mounting(0, 0, 0), default_body_T_cam())
+    T = np.array(body_T_cam_from_mounting(0.0, 45.0, 0.0))
+    h = math.sqrt(0.5)
+    assert np.allclose(T[:3, 2], [h, 0, -h])  # optical axis 45 deg down (FLU)
+    assert np.allclose(np.array(body_T_cam_from_mounting(0, 0, 90.0))[:3, 2], [0, 1, 0])  # left
+    assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3))
+
+
+def test_geometry_options_reach_the_fusion_and_bad_ones_exit_2(tmp_path, capsys):
+    ns = argparse.Namespace(antenna_offset="0.1,-0.2,0.05", imu_to_camera="0,30,0")
+    request = TelemetryRequest(tmp_path / "t.csv", None, 0.2)
+    s = fusion_settings(ns, request)
+    assert s.cam_t_antenna_m == (0.1, -0.2, 0.05) and s.clock_offset_s == 0.2
+    assert np.allclose(s.body_T_cam, body_T_cam_from_mounting(0, 30, 0))
+    base = ["run", str(tmp_path / "v.mp4"), "--map", str(bundled_map_path())]
+    base += ["--out", str(tmp_path / "out")]
+    tel = ["--telemetry", str(tmp_path / "t.csv")]
+    for extra, message in (
+        (["--antenna-offset", "0.1,0.2", *tel], "--antenna-offset 0.1,0.2: give X,Y,Z"),
+        (["--imu-to-camera", "0,nan,0", *tel], "--imu-to-camera 0,nan,0: give roll,pitch"),
+        (["--antenna-offset", "0,0,0.1"], "--antenna-offset needs --telemetry FILE"),
+    ):
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0]

@@ -9,10 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from signpose.cli import add_quiet
-from signpose.cli.run import add_telemetry, telemetry_request
+from signpose.cli.run import add_telemetry, fusion_settings, telemetry_request
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
-from signpose.estimator.fusion import FusionSettings
 from signpose.estimator.refine import refine_flight
 from signpose.io.camera_file import load_camera
 from signpose.io.geo_out import (
@@ -80,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     camera = load_camera(args.camera)
     check_inputs(frames, sign_map, camera, str(args.observations))
     request = telemetry_request(args, log_input=False)
+    fusion_settings(args, request)  # the geometry options checked before any work
     check_geo_request(sign_map, args.geo)
     telemetry, notes = None, []
     if request is not None:
@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.fixed_motion_prior:
         settings = replace(settings, tune_motion=False)
-    fusion = FusionSettings(clock_offset_s=request.clock_offset_s) if request else None
+    fusion = fusion_settings(args, request) if request else None
     result = estimate_trajectories(
         frames, sign_map, camera, settings, args.progress, telemetry=telemetry, fusion=fusion
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TextIO
 
@@ -19,6 +20,7 @@ from signpose.cli import (
 )
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings
+from signpose.estimator.fusion import FusionSettings, body_T_cam_from_mounting
 from signpose.estimator.smoother import SmootherSettings
 from signpose.io.camera_file import load_camera
 from signpose.io.clock import parse_start_time
@@ -97,6 +99,18 @@ def add_telemetry(p: argparse.ArgumentParser, log_input: bool) -> None:
         help="telemetry time minus video time [s] (default: estimated from the flight)",
     )
     p.add_argument(
+        "--antenna-offset",
+        metavar="X,Y,Z",
+        help="the GNSS antenna in the camera frame [m] (x right, y down, z along the optical "
+        "axis; default 0,0,0: at the camera)",
+    )
+    p.add_argument(
+        "--imu-to-camera",
+        metavar="R,P,Y",
+        help="the camera's mounting in the IMU body frame (FLU), roll,pitch,yaw [deg] about the "
+        "body's x, y, z from looking forward (pitch +45: 45 deg down; default 0,0,0)",
+    )
+    p.add_argument(
         "--geo",
         action="store_true",
         help="require the WGS84 outputs (trajectory_wgs84.csv, trajectory.geojson, "
@@ -117,6 +131,34 @@ def telemetry_request(args: argparse.Namespace, log_input: bool) -> TelemetryReq
             raise InputError("--telemetry-topic needs --telemetry FILE")
         return None
     return TelemetryRequest(args.telemetry, args.telemetry_topic, offset)
+
+
+def _three(args: argparse.Namespace, name: str, what: str) -> tuple[float, float, float] | None:
+    text = getattr(args, name.lstrip("-").replace("-", "_"))
+    if text is None:
+        return None
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(x) for x in v):
+        raise InputError(f"{name} {text}: give {what}, three numbers separated by commas")
+    return v
+
+
+def fusion_settings(args: argparse.Namespace, request: TelemetryRequest | None) -> FusionSettings:
+    """The fusion's geometry and clock from the options (InputError for values that do not fit)."""
+    arm = _three(args, "--antenna-offset", "X,Y,Z in metres")
+    mount = _three(args, "--imu-to-camera", "roll,pitch,yaw in degrees")
+    if request is None and (arm is not None or mount is not None):
+        name = "--antenna-offset" if arm is not None else "--imu-to-camera"
+        raise InputError(f"{name} needs --telemetry FILE")
+    s = FusionSettings(clock_offset_s=None if request is None else request.clock_offset_s)
+    if arm is not None:
+        s = replace(s, cam_t_antenna_m=arm)
+    if mount is not None:
+        s = replace(s, body_T_cam=body_T_cam_from_mounting(*mount))
+    return s
 
 
 def print_result(result: RunResult, out: TextIO | None = None, quiet: bool = False) -> None:
@@ -171,8 +213,9 @@ def run(args: argparse.Namespace) -> int:
         ros2_bag=args.ros2_bag,
         start_ns=parse_start_time(args.start_time) if args.start_time is not None else None,
         gt_offset_s=args.gt_offset,
-        telemetry=telemetry_request(args, log_input=True),
+        telemetry=(request := telemetry_request(args, log_input=True)),
         geo=args.geo,
+        fusion=fusion_settings(args, request),
     )
     # Through the module, so that a test's stand-in for pipeline.run is seen.
     result = pipeline.run(
