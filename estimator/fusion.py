@@ -226,7 +226,8 @@ class FusionResult:
         seconds: solve time [s].
         refused: True when nothing was fused because the clock offset could not
             be determined well enough (``clock_shift_limit_s``): the poses are
-            the vision ones and "fused" is not a method of the run.
+            the vision ones, "fused" is not a method of the run, ``clock`` is
+            0 with sigma NaN (source "none") and the note gives the guess.
         notes: one line each for the user (the refusal and how to avoid it;
             the clock taken from the video's own).
     """
@@ -970,7 +971,6 @@ def _vision_only(
     t0: float,
     failed: int = 0,
     refused: str = "",
-    clock: ClockOffset | None = None,
 ):
     """The vision result as a FusionResult (no telemetry, the fused solve failed, or
     the fusion refused with the note ``refused``)."""
@@ -991,7 +991,7 @@ def _vision_only(
         gnss_drift_m=np.zeros((0, 3)),
         gnss_used=np.zeros(0, np.int64),
         gnss_outlier=np.zeros(0, bool),
-        clock=clock or _unestimated_clock(s),
+        clock=_unestimated_clock(s),
         counts={"frames": n, **extra, **({"refused": 1} if refused else {})},
         landmarks_world=vision.landmarks_world.copy(),
         seconds=time.perf_counter() - t0,
@@ -1117,7 +1117,9 @@ def fuse_trajectory(
     refusal = _clock_refusal(clock, vision, stamps, telemetry, sign_map, s)
     if refusal:
         log.warning("%s", refusal)
-        return _vision_only(vision, kept, camera, stamps, s, t0, refused=refusal, clock=clock)
+        # The clock stays undetermined (0, sigma NaN): the guess is in the note only, and
+        # the GNSS track of the geodetic outputs is not placed on it either.
+        return _vision_only(vision, kept, camera, stamps, s, t0, refused=refusal)
     tel_stamps = stamps + clock.offset_s
     use_imu = s.use_imu and telemetry.imu is not None and len(telemetry.imu) > 1
     p = _Problem(
