@@ -1196,8 +1196,9 @@ def _t5_pipeline_note(pd: Mapping) -> str:
     )
     return (
         f"Pipeline column (`bench_pipeline.py`, {n:.0f} frames, climb-hover-depart, "
-        "two detector threads, tracking on): per-stage seconds summed over the frames "
-        "divided by the frames (stages overlap in threads, so they need not add up to "
+        "two observing processes on chunks of 100 frames, tracking on): per-stage seconds "
+        "summed over the frames divided by the frames (stages overlap in processes, so "
+        "they need not add up to "
         "the wall time); positioning = per-frame PnP used for tracking. Total = wall "
         "time per frame incl. video decoding, all estimators and outputs "
         f"({_f(pd['frames_per_second'], '.2f')} frames/s){cpu}. Estimator split: {est}."
@@ -1240,7 +1241,7 @@ def _t5_summary(part: Part, inp: Inputs, cols: Mapping, paper: Mapping) -> None:
             fps = _f(inp[PIPELINE.name]["frames_per_second"], ".2f")
             part.misses.append(
                 f"`signpose run` takes {wall_ms:.0f} ms per frame ({fps} frames/s) with "
-                f"tracking on two threads, against the paper's {ref:.0f} ms."
+                f"tracking on, in two processes, against the paper's {ref:.0f} ms."
             )
     if inp.ok(FRONTEND.name) and _ok(inp[FRONTEND.name]["aruco"]):
         aruco = _f(inp[FRONTEND.name]["aruco"], ".0f", " ms")
