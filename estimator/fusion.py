@@ -301,6 +301,72 @@ class _Fixes:
     dt_s: np.ndarray  # (G,) fix time minus frame time (video clock) [s]
     t_s: np.ndarray  # (G,) telemetry time
     outside: int
+    screened: np.ndarray | None = None  # (G,) True: a burst found by burst_fixes, no weight
+
+
+# Burst screening without an IMU (``burst_fixes``): fits over this long each side [s],
+# the whitened jump that is a step, the longest burst [s].
+BURST_WINDOW_S = 1.0
+BURST_STEP = 4.0
+BURST_MAX_S = 4.0
+
+
+def _line_at(t: np.ndarray, z: np.ndarray, t0: float) -> np.ndarray:
+    """(3,) a least-squares line through (t, z (K, 3)) evaluated at t0."""
+    A = np.stack([np.ones_like(t), t - t0], axis=1)
+    return np.linalg.lstsq(A, z, rcond=None)[0][0]
+
+
+def _steps(t: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """(i, jump (3,)) where the track jumps between fix i-1 and i: a line through the
+    fixes of the window before and one through the window after disagree there by
+    more than ``BURST_STEP`` whitened (local maxima only)."""
+    score = np.zeros(len(t))
+    jump = np.zeros((len(t), 3))
+    for i in range(1, len(t)):
+        tb = 0.5 * (t[i - 1] + t[i])
+        a = (t >= tb - BURST_WINDOW_S) & (t < tb)
+        b = (t >= tb) & (t < tb + BURST_WINDOW_S)
+        if a.sum() < 4 or b.sum() < 4:
+            continue
+        jump[i] = _line_at(t[b], z[b], tb) - _line_at(t[a], z[a], tb)
+        score[i] = float(np.linalg.norm(jump[i] / (0.9 * sigma[i])))
+    out = []
+    for i in np.nonzero(score > BURST_STEP)[0]:
+        near = np.abs(t - t[i]) < BURST_WINDOW_S
+        if score[i] >= score[near].max():
+            out.append((int(i), jump[i]))
+    return out
+
+
+def burst_fixes(t_s: np.ndarray, z_world: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(G,) True for the fixes inside a multipath burst, told from the track alone.
+
+    A burst is a step of the track and a step back within ``BURST_MAX_S``
+    (jumps of opposite sense, their whitened sum under half the larger): the fixes
+    between are flagged. For flights without an IMU, where the constant-velocity
+    prior lets a 5-20 m burst in a sign-free stretch pass for motion.
+    """
+    t = np.asarray(t_s, float)
+    sigma = np.asarray(sigma, float)
+    out = np.zeros(len(t), bool)
+    steps = _steps(t, np.asarray(z_world, float), sigma)
+    used: set[int] = set()
+    for m, (i, ja) in enumerate(steps):
+        if m in used:
+            continue
+        for n in range(m + 1, len(steps)):
+            j, jb = steps[n]
+            if t[j] - t[i] > BURST_MAX_S:
+                break
+            wa, wb = ja / sigma[i], jb / sigma[i]  # whitened: a noisy vertical weighs less
+            if n not in used and np.linalg.norm(wa + wb) < 0.5 * max(
+                np.linalg.norm(wa), np.linalg.norm(wb)
+            ):
+                out[i:j] = True
+                used.update((m, n))
+                break
+    return out
 
 
 def _nearest(stamps: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -340,6 +406,13 @@ def _attach_fixes(
     )
 
 
+def _screen(fixes: _Fixes | None, use_imu: bool) -> _Fixes | None:
+    """Without an IMU, the fixes in bursts (``burst_fixes``) flagged: no weight, outliers."""
+    if fixes is None or use_imu or len(fixes.index) < 8:
+        return fixes
+    return replace(fixes, screened=burst_fixes(fixes.t_s, fixes.z_world, fixes.sigma))
+
+
 def _add_gnss(
     graph: gtsam.NonlinearFactorGraph,
     values: gtsam.Values,
@@ -354,7 +427,8 @@ def _add_gnss(
     for k in range(len(fixes.index)):
         # The fix was taken dt after the frame: move it back by the velocity.
         z = fixes.z_world[k] - vel[fixes.frame[k]] * fixes.dt_s[k]
-        noise = _gnss_noise(fixes.sigma[k], kernel, s.gnss_kernel_k)
+        screened = fixes.screened is not None and fixes.screened[k]
+        noise = _gnss_noise(fixes.sigma[k] * (1e3 if screened else 1.0), kernel, s.gnss_kernel_k)
         out.append(graph.size())
         graph.add(gnss_factor(X(int(fixes.frame[k])), D(k), z, arm, noise))
         values.insert(D(k), np.zeros(3))
@@ -941,7 +1015,7 @@ def _gnss_outliers(g: _Graph, result: gtsam.Values, fixes: _Fixes | None, k: flo
     for m, idx in enumerate(g.gnss_factor):
         e = np.asarray(g.graph.at(idx).unwhitenedError(result))
         out[m] = float(np.linalg.norm(e / fixes.sigma[m])) > k
-    return out
+    return out if fixes.screened is None else out | fixes.screened
 
 
 def _usable(telemetry: Telemetry | None, s: FusionSettings) -> bool:
@@ -1126,7 +1200,7 @@ def fuse_trajectory(
         b=_GraphBuilder(kept, stamps, camera, replace(s.smoother, motion=CONSTANT_VELOCITY)),
         telemetry=telemetry,
         tel_stamps=tel_stamps,
-        fixes=_attach_fixes(telemetry, sign_map, stamps, clock.offset_s, s),
+        fixes=_screen(_attach_fixes(telemetry, sign_map, stamps, clock.offset_s, s), use_imu),
         pims=_pims(telemetry.imu, tel_stamps, s) if use_imu else None,
         enu=sign_map.origin is not None,
         s=s,

@@ -225,6 +225,14 @@ def run_flight(seed: int, fps: float, offset: float, quick: bool) -> dict:
             st: sum(1 for x in full.status if x.value == st) for st in ("ok", "weak", "bridged")
         },
         "refused": {k: r.refused for k, r in fused.items()},
+        "no_imu_burst_fixes_rejected": int(
+            (fused[NO_IMU[0]].gnss_outlier & truth.burst[fused[NO_IMU[0]].gnss_used]).sum()
+        ),
+        "no_imu_burst_fixes": int(truth.burst[fused[NO_IMU[0]].gnss_used].sum()),
+        "no_imu_clean_fixes": int((~truth.burst[fused[NO_IMU[0]].gnss_used]).sum()),
+        "no_imu_clean_fixes_rejected": int(
+            (fused[NO_IMU[0]].gnss_outlier & ~truth.burst[fused[NO_IMU[0]].gnss_used]).sum()
+        ),
         "notes": {k: list(r.notes) for k, r in fused.items() if r.notes},
         "honesty": honesty,
     }
@@ -294,6 +302,10 @@ def no_imu_numbers(flights: list[dict]) -> list[dict]:
         return max(f["honesty"][case]["gap"]["beyond_3_sigma"] for f in flights)
 
     refused = sum(f["refused"]["vision+gnss"] for f in flights)
+    burst_out = sum(f["no_imu_burst_fixes_rejected"] for f in flights)
+    bursts = sum(f["no_imu_burst_fixes"] for f in flights)
+    clean_out = sum(f["no_imu_clean_fixes_rejected"] for f in flights)
+    clean = sum(f["no_imu_clean_fixes"] for f in flights)
     return [
         {
             "number": "no IMU, clock given, with signs: fused RMS / vision-only RMS, worst",
@@ -313,6 +325,8 @@ def no_imu_numbers(flights: list[dict]) -> list[dict]:
                     bridged(NO_IMU[0]), 3
                 ),
                 "burst-free": round(bridged(NO_IMU[1]), 3),
+                "burst fixes rejected (no IMU)": f"{burst_out}/{bursts}",
+                "clean fixes rejected (no IMU)": f"{clean_out}/{clean}",
             },
         },
     ]

@@ -14,6 +14,7 @@ from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
 from signpose.estimator.fusion import (
     FusionSettings,
     body_T_cam_from_mounting,
+    burst_fixes,
     clock_shift_limit_s,
     estimate_clock_offset,
     fuse_trajectory,
@@ -213,3 +214,20 @@ def test_geometry_options_reach_the_fusion_and_bad_ones_exit_2(tmp_path, capsys)
         assert main(base + extra) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0]
+
+
+def test_bursts_told_from_the_gnss_track_alone():
+    """A turning track at 10 Hz, 1.2 m noise, two bursts (6 m for 2 s, 15 m for 1 s)."""
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 40.0, 0.1)
+    track = np.stack([4.0 * np.cos(t / 3), 4.0 * np.sin(t / 3) * 3, 0.2 * t], 1)  # 4 m/s turns
+    burst = ((t >= 10) & (t < 12)) | ((t >= 25) & (t < 26))
+    clean = track + rng.normal(0.0, 1.0, track.shape) * [1.2, 1.2, 1.8]
+    z = clean.copy()
+    z[(t >= 10) & (t < 12)] += [4.0, -4.0, 2.0]
+    z[(t >= 25) & (t < 26)] += [0.0, 15.0, 0.0]
+    sigma = np.tile([1.2, 1.2, 1.8], (len(t), 1))
+    found = burst_fixes(t, z, sigma)
+    assert (found & burst).sum() >= 0.9 * burst.sum()
+    assert (found & ~burst).sum() <= 0.02 * (~burst).sum()
+    assert burst_fixes(t, clean, sigma).sum() <= 0.02 * len(t)  # no burst: ~nothing flagged
