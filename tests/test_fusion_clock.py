@@ -231,3 +231,14 @@ def test_bursts_told_from_the_gnss_track_alone():
     assert (found & burst).sum() >= 0.9 * burst.sum()
     assert (found & ~burst).sum() <= 0.02 * (~burst).sum()
     assert burst_fixes(t, clean, sigma).sum() <= 0.02 * len(t)  # no burst: ~nothing flagged
+
+
+def test_a_video_clock_is_fused_at_offset_0_and_said(flight, sign_map):
+    f = flight
+    srt_like = replace(f["tel"], clock_is_video=True, source="clip.SRT")
+    r = fuse_trajectory(
+        f["frames"], sign_map, f["camera"], f["gt"].stamps_s, srt_like, f["s"], f["v"]
+    )
+    assert not r.refused and (r.clock.offset_s, r.clock.source) == (0.0, "video")
+    (note,) = r.notes
+    assert note.startswith("clock: clip.SRT is on the video's own clock")
