@@ -97,7 +97,22 @@ class MotionChoice:
         d = asdict(self)
         d.pop("settings")
         d["scores"] = [{"parameter": p, "value": v, "score": s} for p, v, s in self.scores]
+        # The densities' units are composite (no _m / _s suffix fits): named beside them.
+        d["parameters"] = dict(zip(("position", "rotation"), _names(self.settings), strict=True))
+        d["units"] = {k: DENSITY_UNITS[name] for k, name in d["parameters"].items()} | {
+            "default_position": DENSITY_UNITS[d["parameters"]["position"]]
+        }
+        d["units"]["default_rotation"] = d["units"]["rotation"]
         return d
+
+
+# Units of the motion prior's densities (estimator.smoother.SmootherSettings).
+DENSITY_UNITS = {
+    "rw_sigma_pos": "m/sqrt(s)",
+    "rw_sigma_rot": "rad/sqrt(s)",
+    "cv_sigma_acc": "m/s^2/sqrt(Hz)",
+    "cv_sigma_rot": "rad/s/sqrt(Hz)",
+}
 
 
 def _names(s: SmootherSettings) -> tuple[str, str]:
