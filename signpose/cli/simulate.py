@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import replace
 from pathlib import Path
 
 from signpose.cli import add_quiet
+from signpose.core.errors import InputError
 from signpose.maps.loader import bundled_map_path, load_map
 from signpose.sim.flight import FORMATS, HARD, SimSettings, frames_for_duration, simulate
+from signpose.sim.telemetry import SIM_ORIGIN, TelemetrySimSettings
 from signpose.sim.trajectories import DEFAULT_SPEED_MPS, TRAJECTORIES
 
 
@@ -71,6 +74,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--occlusion", action="store_true", help="bars in front of some sign faces")
     p.add_argument("--no-blur", action="store_true", help="no motion blur")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise, no JPEG round trip")
+    t = p.add_argument_group("drone telemetry (docs/telemetry.md)")
+    t.add_argument(
+        "--telemetry",
+        action="store_true",
+        help="also write telemetry.csv: GNSS 10 Hz (1.2 m / 1.8 m noise, drift, multipath "
+        "bursts near the conductors) and a 200 Hz MEMS IMU from the flight's ground truth, "
+        "2 s before the first frame to 2 s after the last; map.yaml gets an origin (the "
+        f"map's own, else lat {SIM_ORIGIN.lat_deg:g} lon {SIM_ORIGIN.lon_deg:g} height "
+        f"{SIM_ORIGIN.height_m:g} m) so `signpose run ... --telemetry` can fuse it",
+    )
+    t.add_argument(
+        "--clock-offset",
+        type=float,
+        default=None,
+        metavar="S",
+        help="with --telemetry: telemetry time minus video time [s], rounded to 1 ms (default 0)",
+    )
     g = p.add_argument_group("real-pylon conditions (recorded in boxes.jsonl)")
     g.add_argument(
         "--hard",
@@ -163,6 +183,18 @@ def _quality_range(text: str) -> tuple[int, int]:
     return lo, hi
 
 
+def _telemetry_settings(args: argparse.Namespace) -> TelemetrySimSettings | None:
+    """The sensor errors for --telemetry (the library's defaults), None without it."""
+    if args.clock_offset is not None and not args.telemetry:
+        raise InputError("--clock-offset needs --telemetry (it is the telemetry's clock)")
+    if not args.telemetry:
+        return None
+    offset = 0.0 if args.clock_offset is None else args.clock_offset
+    if not (math.isfinite(offset) and abs(offset) <= 60.0):
+        raise InputError(f"--clock-offset must be a number of seconds within +-60, got {offset}")
+    return TelemetrySimSettings(clock_offset_s=offset)
+
+
 def run(args: argparse.Namespace) -> int:
     map_path = args.map if args.map is not None else bundled_map_path()
     sign_map = load_map(map_path)
@@ -190,7 +222,8 @@ def run(args: argparse.Namespace) -> int:
         settings = settings.hard()
     given = {k: getattr(args, k) for k in CONDITION_OPTIONS if getattr(args, k) is not None}
     settings = replace(settings, **given).validate()
-    result = simulate(sign_map, args.out, settings, progress=args.progress)
+    telemetry = _telemetry_settings(args)
+    result = simulate(sign_map, args.out, settings, progress=args.progress, telemetry=telemetry)
     print(
         f"simulated {result.n_frames} frames ({result.duration_s:.2f} s, {settings.trajectory}, "
         f"mean {result.mean_speed_mps:.2f} m/s, peak {result.peak_speed_mps:.2f} m/s, "

@@ -35,6 +35,9 @@ Output folder (``simulate``):
     boxes.jsonl                      per-frame truth of every visible sign
                                      (``signpose.io.boxes``, which documents it)
     map.yaml                         copy of the map (``signpose.maps.loader``)
+    telemetry.csv                    only with ``telemetry``: GNSS + IMU of the flight
+                                     (``signpose.sim.telemetry``); map.yaml then has
+                                     an ``origin`` (the map's own, else ``SIM_ORIGIN``)
 """
 
 from __future__ import annotations
@@ -60,11 +63,19 @@ from signpose.sim.conditions import ConditionSettings, frame_draws
 from signpose.sim.frame import render_frame
 from signpose.sim.render import RenderOptions
 from signpose.sim.scene import Scene, SceneOptions, build_scene
+from signpose.sim.telemetry import (
+    SIM_ORIGIN,
+    SampledFlight,
+    TelemetrySimSettings,
+    simulate_telemetry,
+    write_telemetry_csv,
+)
 from signpose.sim.trajectories import (
     CONTINUATION,
     MAX_SPEED_MPS,
     TRAJECTORIES,
     make_trajectory,
+    site_frame,
     speed_stats,
 )
 from signpose.sim.writers import FORMATS, FrameWriter, make_frame_writer
@@ -79,6 +90,7 @@ __all__ = [
     "simulate",
     "simulated_camera",
     "stamp_ns_of",
+    "telemetry_flight",
 ]
 
 log = logging.getLogger(__name__)
@@ -284,14 +296,17 @@ class SimResult:
     duration_s: float = 0.0
     mean_speed_mps: float = 0.0
     peak_speed_mps: float = 0.0
+    telemetry_path: Path | None = None
 
     def paths(self) -> tuple[Path, ...]:
+        extra = () if self.telemetry_path is None else (self.telemetry_path,)
         return (
             self.frames_path,
             self.camera_path,
             self.groundtruth_path,
             self.boxes_path,
             self.map_path,
+            *extra,
         )
 
 
@@ -413,11 +428,63 @@ def _flight_comment(settings: SimSettings, result: SimResult) -> str:
     )
 
 
+TELEMETRY_GRID_HZ = 1000.0
+
+
+def telemetry_flight(sign_map: SignMap, settings: SimSettings, pad_s: float) -> SampledFlight:
+    """The flight of ``settings`` as a ``SampledFlight``: its trajectory sampled at 1 kHz
+    over [-pad_s, frames / fps + pad_s] of video time.
+
+    The trajectory is a function of time when ``speed_mps`` is set (a shorter flight
+    is the start of a longer one; before 0 it runs backwards the same way), so the
+    grid's poses are the rendered frames' own function, not a fit to them.
+    """
+    if settings.speed_mps is None:
+        raise ValueError("telemetry_flight: needs settings.speed_mps (a flight in time)")
+    duration = settings.frames / settings.fps
+    n_after = int(math.ceil((duration + pad_s) * TELEMETRY_GRID_HZ)) + 2
+    n_before = int(math.ceil(pad_s * TELEMETRY_GRID_HZ)) + 2
+
+    def grid(n: int, rate: float) -> np.ndarray:
+        return make_trajectory(
+            settings.trajectory,
+            sign_map,
+            n_frames=n,
+            fps=rate,
+            distance_m=settings.distance_m,
+            seed=settings.seed,
+            speed_mps=settings.speed_mps,
+        ).world_T_cam()
+
+    before = grid(n_before, -TELEMETRY_GRID_HZ)[:0:-1]  # times -(n_before-1)/rate .. -1/rate
+    poses = np.concatenate([before, grid(n_after, TELEMETRY_GRID_HZ)])
+    center, facing, right, up = site_frame(sign_map)
+    t0 = -(n_before - 1) / TELEMETRY_GRID_HZ
+    return SampledFlight(duration, center, facing, right, up, t0, TELEMETRY_GRID_HZ, poses)
+
+
+def _write_telemetry(
+    sign_map: SignMap, settings: SimSettings, result: SimResult, tel: TelemetrySimSettings
+) -> SimResult:
+    """Write telemetry.csv (clock offset rounded to 1 ms) and map.yaml with an origin."""
+    if sign_map.origin is None:
+        sign_map = replace(sign_map, origin=SIM_ORIGIN)
+    tel = replace(tel, clock_offset_s=round(tel.clock_offset_s, 3))
+    flight = telemetry_flight(sign_map, settings, tel.margin_s + abs(tel.clock_offset_s) + 0.01)
+    rng = np.random.default_rng([settings.seed, 17])
+    telemetry, _ = simulate_telemetry(flight, sign_map, rng, tel)
+    path = result.out_dir / "telemetry.csv"
+    write_telemetry_csv(path, telemetry)
+    write_map(result.map_path, sign_map)
+    return replace(result, telemetry_path=path)
+
+
 def simulate(
     sign_map: SignMap,
     out_dir: str | Path,
     settings: SimSettings = SimSettings(),
     progress: bool = True,
+    telemetry: TelemetrySimSettings | None = None,
 ) -> SimResult:
     """Render a flight in front of ``sign_map`` and write it with its ground truth to ``out_dir``.
 
@@ -426,6 +493,8 @@ def simulate(
         out_dir: output folder, created if missing.
         settings: what to simulate.
         progress: show a tqdm bar over frames.
+        telemetry: also write telemetry.csv with these sensor errors (needs
+            ``settings.speed_mps``) and give map.yaml an origin; None: not.
 
     Returns:
         The paths written. Raises OutputError when ``out_dir`` is not writable.
@@ -477,4 +546,6 @@ def simulate(
     write_camera_info(result.camera_path, camera)
     write_tum(result.groundtruth_path, traj, (_flight_comment(settings, result),))
     write_map(result.map_path, sign_map)
+    if telemetry is not None:
+        result = _write_telemetry(sign_map, settings, result, telemetry)
     return result

@@ -38,12 +38,15 @@ from signpose.io.telemetry_csv import (
     SIGMA_COLUMNS,
     TIME_COLUMN,
 )
-from signpose.maps.geodesy import geodetic_from_enu
+from signpose.maps.geodesy import GeoOrigin, geodetic_from_enu
 from signpose.maps.loader import SignMap
 from signpose.sim.trajectories import site_frame
 
 CSV_MAGIC = "# signpose telemetry v1"
 GRAVITY_M_S2 = 9.80665
+# The WGS84 anchor ``signpose simulate --telemetry`` gives a map without an
+# ``origin`` (Zurich, ellipsoidal height 480 m; also ``scripts/eval_fusion.py``'s).
+SIM_ORIGIN = GeoOrigin(47.3769, 8.5417, 480.0)
 
 
 def default_body_T_cam() -> np.ndarray:
@@ -465,3 +468,72 @@ def write_telemetry_csv(path: str | Path, telemetry: Telemetry) -> None:
         f.write(CSV_MAGIC + "\n" + ",".join(header) + "\n")
         for _, cells in _csv_rows(telemetry):
             f.write(",".join(cells) + "\n")
+
+
+@dataclass(frozen=True)
+class SampledFlight:
+    """A flight given by its poses on a fine uniform time grid (``FlightTruth``'s interface).
+
+    ``signpose simulate --telemetry`` samples the rendered trajectory's own
+    function of time (``sim.flight.telemetry_flight``) at ``rate_hz``, also
+    before the first frame and after the last. Between grid times the pose is
+    interpolated (translation linearly, rotation along the geodesic); at grid
+    times it is the trajectory's own, so the IMU's central differences
+    (``imu_truth``, step 1 ms) are exact when the grid is 1 kHz and the sample
+    times fall on it (a clock offset in whole milliseconds).
+
+    Attributes:
+        duration_s: the video lasts [0, duration_s] [s].
+        center / facing / right / up: the site's axes (``site_frame``).
+        t0_s: video time of the first grid pose [s].
+        rate_hz: grid rate [Hz].
+        world_T_cam: (M, 4, 4) poses at t0_s + k / rate_hz.
+    """
+
+    duration_s: float
+    center: np.ndarray
+    facing: np.ndarray
+    right: np.ndarray
+    up: np.ndarray
+    t0_s: float
+    rate_hz: float
+    world_T_cam: np.ndarray
+
+    def _index(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(grid index i, fraction in [0, 1]) of each time, clamped to the grid."""
+        u = (np.atleast_1d(np.asarray(t, float)) - self.t0_s) * self.rate_hz
+        u = np.clip(u, 0.0, len(self.world_T_cam) - 1.0)
+        i = np.minimum(np.floor(u + 1e-7).astype(int), len(self.world_T_cam) - 2)
+        return i, np.clip(u - i, 0.0, 1.0)
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        """(N, 3) camera centres at video times ``t`` (N,) [s]."""
+        i, a = self._index(t)
+        p = self.world_T_cam[:, :3, 3]
+        return p[i] * (1 - a)[:, None] + p[i + 1] * a[:, None]
+
+    def rotations(self, t: np.ndarray) -> np.ndarray:
+        """(N, 3, 3) world_R_cam at video times ``t`` (N,) [s]."""
+        i, a = self._index(t)
+        R = self.world_T_cam[:, :3, :3]
+        w = _log_so3(np.swapaxes(R[i], 1, 2) @ R[i + 1]) * a[:, None]
+        return R[i] @ _exp_so3(w)
+
+    def poses(self, t: np.ndarray) -> np.ndarray:
+        """(N, 4, 4) world_T_cam at video times ``t`` (N,) [s]."""
+        t = np.atleast_1d(np.asarray(t, float))
+        T = np.tile(np.eye(4), (len(t), 1, 1))
+        T[:, :3, 3] = self.position(t)
+        T[:, :3, :3] = self.rotations(t)
+        return T
+
+
+def _exp_so3(w: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations of (N, 3) rotation vectors (Rodrigues)."""
+    angle = np.linalg.norm(w, axis=1)
+    axis = w / np.maximum(angle, 1e-12)[:, None]
+    K = np.zeros((len(w), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    K -= np.swapaxes(K, 1, 2)
+    a = angle[:, None, None]
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
