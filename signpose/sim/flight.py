@@ -500,6 +500,8 @@ def simulate(
         The paths written. Raises OutputError when ``out_dir`` is not writable.
     """
     settings.validate()
+    if telemetry is not None and settings.speed_mps is None:
+        raise ValueError("simulate: telemetry needs settings.speed_mps (a flight in time)")
     out = ensure_dir(out_dir)
     camera = simulated_camera(settings)
     traj = make_trajectory(
