@@ -41,6 +41,7 @@ from signpose.fingerprint import (
     stored_fingerprint,
 )
 from signpose.io.camera_file import load_camera
+from signpose.io.telemetry import TelemetryRequest
 from signpose.maps.loader import load_map
 from signpose.pipeline import ObserveSettings, RunSettings, make_detector, run
 from signpose.report_html import write_batch_index
@@ -94,6 +95,10 @@ class FlightJob:
             1 when flights already run in parallel, so that ``--jobs 2`` is two
             processes, not four. Not in the fingerprint: the output does not
             depend on it.
+        telemetry: the drone's telemetry file beside each input, as a name in
+            which ``{stem}`` is the input's name without its suffix (DJI:
+            ``{stem}.SRT``), or "" (none: vision only).
+        telemetry_offset_s: telemetry time minus video time [s]; None: estimated.
     """
 
     flight: str
@@ -109,6 +114,8 @@ class FlightJob:
     cascade_path: str = ""
     fingerprint: str = ""
     workers: int = 0
+    telemetry: str = ""
+    telemetry_offset_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -230,6 +237,29 @@ def _beside(input_path: Path, name: str) -> str:
     return ""
 
 
+def telemetry_name(pattern: str, input_path: Path) -> str:
+    """The telemetry file's name for one input (``{stem}``: the input's name without suffix)."""
+    try:
+        return pattern.format(stem=input_path.stem, name=input_path.name)
+    except (KeyError, IndexError, ValueError):
+        raise InputError(
+            f"--telemetry {pattern}: a file name, where {{stem}} stands for the input's name "
+            "without its suffix (e.g. {stem}.SRT); no other {...} fields"
+        ) from None
+
+
+def _telemetry_beside(job: FlightJob) -> str:
+    """The flight's telemetry file ("" without --telemetry); InputError when it is missing."""
+    if not job.telemetry:
+        return ""
+    inp = Path(job.input_path)
+    name = telemetry_name(job.telemetry, inp)
+    found = _beside(inp, name)
+    if not found:
+        raise InputError(f"{inp}: no telemetry file {name} beside it (--telemetry {job.telemetry})")
+    return found
+
+
 def run_flight(job: FlightJob) -> FlightOutcome:
     """Run one flight; never raises (failures are outcomes). Writes the done marker last."""
     t0 = time.perf_counter()
@@ -240,6 +270,12 @@ def run_flight(job: FlightJob) -> FlightOutcome:
         camera_path = job.camera_path or _beside(inp, "camera.yaml")
         camera = load_camera(camera_path) if camera_path else None
         gt_path = job.gt_path or _beside(inp, "groundtruth.tum")
+        telemetry_path = _telemetry_beside(job)
+        telemetry = (
+            TelemetryRequest(path=Path(telemetry_path), clock_offset_s=job.telemetry_offset_s)
+            if telemetry_path
+            else None
+        )
         result = run(
             inp,
             sign_map,
@@ -252,6 +288,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
                 observe=ObserveSettings(cascade_path=job.cascade_path, workers=job.workers),
                 with_images=job.with_images,
                 plots=job.plots,
+                telemetry=telemetry,
             ),
             progress=False,
         )
@@ -411,8 +448,21 @@ def _fingerprint(job: FlightJob) -> str:
         job.camera_path or _beside(inp, "camera.yaml") or None,
         job.gt_path or _beside(inp, "groundtruth.tum") or None,
         {k: getattr(job, k) for k in _RESULT_FIELDS}
-        | {"cascade": content_digest(job.cascade_path)},
+        | {"cascade": content_digest(job.cascade_path)}
+        | _telemetry_key(job),
     )
+
+
+def _telemetry_key(job: FlightJob) -> dict:
+    """The telemetry's part of the fingerprint: nothing without --telemetry (old runs match)."""
+    if not job.telemetry:
+        return {}
+    inp = Path(job.input_path)
+    found = _beside(inp, telemetry_name(job.telemetry, inp))
+    return {
+        "telemetry": content_digest(found) if found else "missing",
+        "telemetry_offset_s": job.telemetry_offset_s,
+    }
 
 
 def _jobs(
@@ -555,6 +605,8 @@ def run_batch(
     force: bool = False,
     root: str | os.PathLike | None = None,
     cascade_path: str | os.PathLike | None = None,
+    telemetry: str | None = None,
+    telemetry_offset_s: float | None = None,
 ) -> list[FlightOutcome]:
     """Run every flight not finished yet (or changed since) and write ``summary.csv``.
 
@@ -574,6 +626,9 @@ def run_batch(
             ``flight_names``), so that names do not depend on which flights
             are passed together.
         cascade_path: detector cascade XML for every flight; None: the bundled one.
+        telemetry: each flight's telemetry file beside its input (``FlightJob.telemetry``:
+            a name with ``{stem}``); a flight without it fails on bad input.
+        telemetry_offset_s: ``--telemetry-offset`` for every flight; None: estimated.
 
     Returns:
         One outcome per input, in input order.
@@ -582,6 +637,8 @@ def run_batch(
         raise InputError("no flights given")
     load_map(map_path)  # fail once, early, on a bad map or cascade
     cascade = str(Path(cascade_path).resolve()) if cascade_path else ""
+    if telemetry:
+        telemetry_name(telemetry, Path("flight.mp4"))  # a malformed pattern fails once, early
     if cascade:
         make_detector(ObserveSettings(cascade_path=cascade))
     out = ensure_dir(out_dir)
@@ -597,6 +654,8 @@ def run_batch(
         with_images=with_images,
         plots=plots,
         cascade_path=cascade,
+        telemetry=telemetry or "",
+        telemetry_offset_s=telemetry_offset_s,
         # Flights in parallel (a pool or a cluster): each observes in its own process only.
         workers=1 if (jobs > 1 or scheduler) else 0,
     )

@@ -45,6 +45,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="name each flight by its input's path below ROOT (ROOT/f1/video.mp4 -> f1_video), "
         "the same whichever flights are passed; default: the input's name",
     )
+    p.add_argument(
+        "--telemetry",
+        metavar="NAME",
+        help="fuse each flight's GNSS/IMU from the file NAME beside its input; {stem} is the "
+        "input's name without its suffix (DJI: '{stem}.SRT'; simulated: telemetry.csv); "
+        "a flight without it fails (docs/telemetry.md)",
+    )
+    p.add_argument(
+        "--telemetry-offset",
+        type=float,
+        metavar="S",
+        help="telemetry time minus video time [s] for every flight (default: estimated)",
+    )
     add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
@@ -68,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         root=args.root,
         cascade_path=args.cascade,
+        telemetry=args.telemetry,
+        telemetry_offset_s=args.telemetry_offset,
     )
     failed = [o for o in outcomes if o.status is FlightStatus.FAILED]
     skipped = sum(o.skipped for o in outcomes)
