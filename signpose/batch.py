@@ -626,21 +626,14 @@ def run_batch(
             ``flight_names``), so that names do not depend on which flights
             are passed together.
         cascade_path: detector cascade XML for every flight; None: the bundled one.
-        telemetry: each flight's telemetry file beside its input (``FlightJob.telemetry``:
-            a name with ``{stem}``); a flight without it fails on bad input.
-        telemetry_offset_s: ``--telemetry-offset`` for every flight; None: estimated.
+        telemetry, telemetry_offset_s: as ``FlightJob``'s (a flight without its file fails).
 
     Returns:
         One outcome per input, in input order.
     """
     if not inputs:
         raise InputError("no flights given")
-    load_map(map_path)  # fail once, early, on a bad map or cascade
-    cascade = str(Path(cascade_path).resolve()) if cascade_path else ""
-    if telemetry:
-        telemetry_name(telemetry, Path("flight.mp4"))  # a malformed pattern fails once, early
-    if cascade:
-        make_detector(ObserveSettings(cascade_path=cascade))
+    cascade = _check_shared(map_path, cascade_path, telemetry)
     out = ensure_dir(out_dir)
     names = flight_names(inputs, root)
     options = FlightJob(
@@ -675,6 +668,19 @@ def run_batch(
         write_summary(out / SUMMARY_NAME, ordered)
         write_batch_index(out)
     return ordered
+
+
+def _check_shared(
+    map_path: str | os.PathLike, cascade_path: str | os.PathLike | None, telemetry: str | None
+) -> str:
+    """Fail once, early, on a bad map, cascade or telemetry name; the cascade's full path."""
+    load_map(map_path)
+    if telemetry:
+        telemetry_name(telemetry, Path("flight.mp4"))
+    cascade = str(Path(cascade_path).resolve()) if cascade_path else ""
+    if cascade:
+        make_detector(ObserveSettings(cascade_path=cascade))
+    return cascade
 
 
 def _flights_bar(total: int, done: int, progress: bool) -> tqdm:
