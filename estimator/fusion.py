@@ -577,7 +577,7 @@ def _add_gimbal(
 # ----------------------------------------------------------------- clock offset
 
 
-def _log_so3(R: np.ndarray) -> np.ndarray:
+def log_so3(R: np.ndarray) -> np.ndarray:
     """(N, 3) rotation vectors of (N, 3, 3) rotations (angles below pi)."""
     c = np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
     angle = np.arccos(c)
@@ -597,7 +597,7 @@ def _gyro_residuals(
     pair = np.nonzero(observed[1:] & observed[:-1])[0] + 1
     R = world_T_cam[:, :3, :3]
     dt = np.maximum(stamps[pair] - stamps[pair - 1], 1e-6)
-    w_vis = _log_so3(np.swapaxes(R[pair - 1], 1, 2) @ R[pair]) / dt[:, None]
+    w_vis = log_so3(np.swapaxes(R[pair - 1], 1, 2) @ R[pair]) / dt[:, None]
     t = np.asarray(imu.t_s, float)
     g = np.asarray(imu.gyro_rad_s, float)
     cum = np.concatenate(

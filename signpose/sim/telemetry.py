@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from signpose.core.fileio import atomic_write
-from signpose.estimator.fusion import gimbal_from_world_R_cam
+from signpose.estimator.fusion import gimbal_from_world_R_cam, log_so3
 from signpose.estimator.telemetry import GimbalAngles, GnssFixes, ImuSamples, Telemetry
 from signpose.estimator.trajectory import Trajectory
 from signpose.io.telemetry_csv import (
@@ -208,15 +208,6 @@ def _rots(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
 
 
-def _log_so3(R: np.ndarray) -> np.ndarray:
-    """(N, 3) rotation vectors of (N, 3, 3) rotations (angles below pi)."""
-    c = np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
-    angle = np.arccos(c)
-    w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
-    scale = np.where(angle < 1e-9, 0.5, angle / (2 * np.sin(np.maximum(angle, 1e-9))))
-    return scale[:, None] * w
-
-
 def away_and_back(
     sign_map: SignMap,
     duration_s: float = 30.0,
@@ -263,7 +254,7 @@ def imu_truth(
     t = np.asarray(t_video_s, float)
     T0, T1, T2 = (flight.poses(t + d) @ cam_T_body for d in (-h, 0.0, h))
     R0, R1, R2 = T0[:, :3, :3], T1[:, :3, :3], T2[:, :3, :3]
-    gyro = _log_so3(np.swapaxes(R0, 1, 2) @ R2) / (2 * h)
+    gyro = log_so3(np.swapaxes(R0, 1, 2) @ R2) / (2 * h)
     a_world = (T2[:, :3, 3] - 2 * T1[:, :3, 3] + T0[:, :3, 3]) / h**2
     gravity = np.array([0.0, 0.0, -GRAVITY_M_S2])
     accel = np.einsum("nji,nj->ni", R1, a_world - gravity)
@@ -516,7 +507,7 @@ class SampledFlight:
         """(N, 3, 3) world_R_cam at video times ``t`` (N,) [s]."""
         i, a = self._index(t)
         R = self.world_T_cam[:, :3, :3]
-        w = _log_so3(np.swapaxes(R[i], 1, 2) @ R[i + 1]) * a[:, None]
+        w = log_so3(np.swapaxes(R[i], 1, 2) @ R[i + 1]) * a[:, None]
         return R[i] @ _exp_so3(w)
 
     def poses(self, t: np.ndarray) -> np.ndarray:
