@@ -97,72 +97,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="every condition below on at realistic rates (the options below override it)",
     )
-    g.add_argument(
-        "--members",
-        type=float,
-        default=None,
-        help=_hard("share of signs crossed by a member", "members"),
-    )
-    g.add_argument(
-        "--conductors",
-        type=int,
-        default=None,
-        help=_hard("extra conductors in front", "conductors"),
-    )
-    g.add_argument(
-        "--insulators",
-        action="store_true",
-        default=None,
-        help=_hard("insulator strings", "insulators"),
-    )
-    g.add_argument(
-        "--faded", type=float, default=None, help=_hard("share of faces with faded paint", "faded")
-    )
-    g.add_argument(
-        "--glare",
-        type=float,
-        default=None,
-        help=_hard("share of faces with specular glare", "glare"),
-    )
-    g.add_argument(
-        "--photo",
-        action="store_true",
-        default=None,
-        help=_hard("photographs as backgrounds", "photo"),
-    )
-    g.add_argument(
-        "--jpeg-range",
-        type=_quality_range,
-        default=None,
-        help=_hard("per-frame JPEG quality LO,HI", "jpeg_range"),
-    )
-    g.add_argument(
-        "--vibration",
-        type=float,
-        default=None,
-        help=_hard("vibration blur bursts per s", "vibration"),
-    )
-    g.add_argument(
-        "--exposure-steps",
-        type=float,
-        default=None,
-        help=_hard("auto-exposure gain steps per s", "exposure_steps"),
-    )
+    for name, kind, text in CONDITIONS:
+        how = {"action": "store_true"} if kind is bool else {"type": kind}
+        flag = "--" + name.replace("_", "-")
+        g.add_argument(flag, default=None, help=_hard(text, name), **how)
     add_quiet(p)
     p.set_defaults(func=run)
-
-
-CONDITION_OPTIONS = (
-    "members",
-    "conductors",
-    "insulators",
-    "faded",
-    "glare",
-    "photo",
-    "jpeg_range",
-    "vibration",
-    "exposure_steps",
-)
 
 
 def _hard(text: str, name: str) -> str:
@@ -181,6 +121,21 @@ def _quality_range(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected LO,HI such as 70,90, got {text!r}") from None
     return lo, hi
+
+
+# The real-pylon conditions: option (SimSettings field), type (bool: a switch), help.
+CONDITIONS = (
+    ("members", float, "share of signs crossed by a member"),
+    ("conductors", int, "extra conductors in front"),
+    ("insulators", bool, "insulator strings"),
+    ("faded", float, "share of faces with faded paint"),
+    ("glare", float, "share of faces with specular glare"),
+    ("photo", bool, "photographs as backgrounds"),
+    ("jpeg_range", _quality_range, "per-frame JPEG quality LO,HI"),
+    ("vibration", float, "vibration blur bursts per s"),
+    ("exposure_steps", float, "auto-exposure gain steps per s"),
+)
+CONDITION_OPTIONS = tuple(name for name, _, _ in CONDITIONS)
 
 
 def _telemetry_settings(args: argparse.Namespace) -> TelemetrySimSettings | None:
