@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from signpose.core.fileio import atomic_write
-from signpose.estimator.fusion import gimbal_from_world_R_cam, log_so3
+from signpose.estimator.fusion import FusionSettings, gimbal_from_world_R_cam, log_so3
 from signpose.estimator.telemetry import GimbalAngles, GnssFixes, ImuSamples, Telemetry
 from signpose.estimator.trajectory import Trajectory
 from signpose.io.telemetry_csv import (
@@ -56,10 +56,8 @@ def default_body_T_cam() -> np.ndarray:
     term but not the angular-acceleration one (5 cm and the wobble moved a
     1 s preintegration 8 mm off).
     """
-    T = np.eye(4)
     # Camera axes in the body: x right = -y_body, y down = -z_body, z forward = x_body.
-    T[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-    return T
+    return np.array(FusionSettings().body_T_cam, float)  # the fusion's default mounting
 
 
 @dataclass(frozen=True)
