@@ -89,6 +89,16 @@ def _default_body_T_cam() -> tuple[tuple[float, ...], ...]:
     return ((0.0, 0.0, 1.0, 0.0), (-1.0, 0.0, 0.0, 0.0), (0.0, -1.0, 0.0, 0.0), (0, 0, 0, 1.0))
 
 
+def _rot_zyx(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """(3, 3) ``Rz(yaw) Ry(pitch) Rx(roll)`` (Z-Y-X Euler angles) [deg]."""
+    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
+    cz, sz, cy, sy, cx, sx = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1.0]])
+    Ry = np.array([[cy, 0, sy], [0, 1.0, 0], [-sy, 0, cy]])
+    Rx = np.array([[1.0, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    return Rz @ Ry @ Rx
+
+
 def body_T_cam_from_mounting(roll_deg: float, pitch_deg: float, yaw_deg: float):
     """(4, 4) the camera's pose in the IMU body (FLU) as nested tuples, at the IMU.
 
@@ -98,12 +108,8 @@ def body_T_cam_from_mounting(roll_deg: float, pitch_deg: float, yaw_deg: float):
     (0, 0, 0) is the default and pitch +45 looks 45 deg down (FLU: +y is left,
     a positive turn about it takes x towards -z), yaw +90 looks left.
     """
-    r, p, y = np.radians([roll_deg, pitch_deg, yaw_deg])
-    Rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
-    Ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
-    Rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
     T = np.array(_default_body_T_cam(), float)
-    T[:3, :3] = Rz @ Ry @ Rx @ T[:3, :3]
+    T[:3, :3] = _rot_zyx(yaw_deg, pitch_deg, roll_deg) @ T[:3, :3]
     return tuple(tuple(float(x) for x in row) for row in T)
 
 
@@ -531,12 +537,7 @@ _FRD_R_CAM = np.array([[0, 0, 1.0], [1.0, 0, 0], [0, 1.0, 0]])
 def world_R_cam_from_gimbal(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
     """(3, 3) camera (OpenCV axes) in ENU from DJI gimbal angles (yaw from north, clockwise;
     pitch negative looking down; Z-Y-X Euler angles of the gimbal's FRD frame in NED)."""
-    y, p, r = np.radians([yaw_deg, pitch_deg, roll_deg])
-    cz, sz, cy, sy, cx, sx = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
-    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1.0]])
-    Ry = np.array([[cy, 0, sy], [0, 1.0, 0], [-sy, 0, cy]])
-    Rx = np.array([[1.0, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    return _ENU_R_NED @ (Rz @ Ry @ Rx) @ _FRD_R_CAM
+    return _ENU_R_NED @ _rot_zyx(yaw_deg, pitch_deg, roll_deg) @ _FRD_R_CAM
 
 
 def gimbal_from_world_R_cam(world_R_cam: np.ndarray) -> tuple[float, float, float]:
