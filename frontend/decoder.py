@@ -1560,17 +1560,45 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
     ellipse = _safe_disc_ellipse(image_H_sign)
     if ellipse is None:
         return _fail(DecodeReason.INCONSISTENT)
-    rms = refined.residual_px
+    return _reading_result(
+        code,
+        kp_parts,
+        uv,
+        image_H_sign,
+        ellipse,
+        reading,
+        refined.residual_px,
+        bool(occ.covered_parts),
+        max(occ.disturbance, refined.fill_deficit),
+        erased,
+    )
+
+
+def _reading_result(
+    code: str,
+    parts: list[int],
+    uv: np.ndarray,
+    image_H_sign: np.ndarray,
+    ellipse: Ellipse,
+    reading: _Reading,
+    rms: float,
+    crossed: bool,
+    disturbance: float,
+    erased: tuple[int, ...],
+) -> DecodeResult:
+    """An accepted reading as a ``DecodeResult``: quality from the reading's
+    margin and the fit's residual ``rms`` [px], keypoints ``uv`` of ``parts``
+    with their sigmas (``keypoint_sigmas``)."""
     quality = min(max(reading.margin / 0.5, 0.0), 1.0) * math.exp(
         -(rms if math.isfinite(rms) else 0.0) / 0.5
     )
-    names = [_PART_NAMES[p] for p in kp_parts]
+    names = [_PART_NAMES[p] for p in parts]
     inputs = SigmaInputs(
         minor_px=float(ellipse[1][1]),
         spread=reading.spread,
         residual_px=rms,
-        crossed=bool(occ.covered_parts),
-        disturbance=max(occ.disturbance, refined.fill_deficit),
+        crossed=crossed,
+        disturbance=disturbance,
     )
     sigmas = keypoint_sigmas(inputs, names)
     return DecodeResult(

@@ -46,26 +46,23 @@ from signpose.frontend.decoder import (
     _CODE_PARTS,
     _LOCATION_SIDE,
     _PART_CENTRES,
-    _PART_NAMES,
     _PART_QUADS,
     _RIM,
     DecodeReason,
     DecodeResult,
     DecoderSettings,
-    SigmaInputs,
     _accept_code,
     _as_gray,
     _consistent,
     _fill_deficit,
     _inside,
     _LazyFlag,
-    _mean_sigma,
     _project,
     _read_slots,
+    _reading_result,
     _Region,
     _safe_disc_ellipse,
     _subpixel_centroids,
-    keypoint_sigmas,
 )
 from signpose.frontend.homography import fit_homography, polygon_centroids, prepare_source
 
@@ -326,30 +323,8 @@ def _refit_and_check(
     ellipse = _safe_disc_ellipse(h_ref)
     if ellipse is None:
         return _miss(VerifyOutcome.NOT_VERIFIABLE)
-    names = [_PART_NAMES[p] for p in parts]
     uv = _project(h_ref, _PART_CENTRES[parts])
-    inputs = SigmaInputs(
-        minor_px=float(ellipse[1][1]),
-        spread=first.spread,
-        residual_px=rms,
-        crossed=False,
-        disturbance=max(occ.disturbance, deficit),
-    )
-    sigmas = keypoint_sigmas(inputs, names)
-    quality = min(max(first.margin / 0.5, 0.0), 1.0) * math.exp(
-        -(rms if math.isfinite(rms) else 0.0) / 0.5
-    )
-    result = DecodeResult(
-        code=code,
-        reason=DecodeReason.OK,
-        keypoints_px={n: (float(p[0]), float(p[1])) for n, p in zip(names, uv, strict=True)},
-        ellipse=ellipse,
-        quality=float(quality),
-        sigma_px=_mean_sigma(sigmas),
-        image_H_sign=h_ref,
-        residual_px=rms,
-        erased_slots=(),
-        keypoint_sigma_px=sigmas,
-        sigma_inputs=inputs,
+    result = _reading_result(
+        code, parts, uv, h_ref, ellipse, first, rms, False, max(occ.disturbance, deficit), ()
     )
     return Verification(VerifyOutcome.VERIFIED, result)
