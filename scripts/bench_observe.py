@@ -46,7 +46,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
-from independent_flight import write_flight
+from independent_flight import drawn_once
 from signpose.estimator.perframe import solve_frame_pnp
 from signpose.frontend import detector
 from signpose.maps.loader import bundled_map_path, load_map
@@ -76,15 +76,7 @@ def _flight(work: Path, frames: int, width: int, height: int) -> Path:
 
 def _independent(work: Path, frames: int, width: int, height: int) -> Path:
     """The flight of ``scripts/independent_flight.py`` in ``work/independent`` (drawn once)."""
-    out = work / "independent"
-    stamp = out / "bench_observe.json"
-    key = {"frames": frames, "width": width, "height": height}
-    video = out / "video.mp4"
-    if not (stamp.is_file() and video.is_file() and json.loads(stamp.read_text()) == key):
-        write_flight(out, frames, width, height)
-        with atomic_write(stamp) as f:
-            json.dump(key, f)
-    return video
+    return drawn_once(work / "independent", frames, width, height, "bench_observe.json")
 
 
 def _quality(result, sign_map, camera) -> dict:

@@ -34,7 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from independent_flight import write_flight
+from independent_flight import drawn_once
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.smoother import SmootherSettings
 from signpose.maps.loader import bundled_map_path, load_map
@@ -77,13 +77,7 @@ def _flight(work: Path, frames: int, width: int, height: int, quiet: bool):
 def _independent(work: Path, frames: int, width: int, height: int):
     """The flight of ``scripts/independent_flight.py`` in ``work/independent`` (drawn once)."""
     out = work / "independent"
-    stamp = out / "bench.json"
-    key = {"frames": frames, "width": width, "height": height}
-    video = out / "video.mp4"
-    if not (stamp.is_file() and video.is_file() and json.loads(stamp.read_text()) == key):
-        write_flight(out, frames, width, height)
-        with atomic_write(stamp) as f:
-            json.dump(key, f)
+    video = drawn_once(out, frames, width, height, "bench.json")
     return video, out / "groundtruth.tum", load_camera(out / "camera.yaml")
 
 

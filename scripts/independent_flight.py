@@ -20,6 +20,7 @@ Writes ``video.mp4``, ``camera.yaml`` (pinhole) and ``groundtruth.tum`` into OUT
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 from dataclasses import dataclass, replace
@@ -30,7 +31,7 @@ import numpy as np
 from independent_scene import SUPERSAMPLE, _bar_polygon, _face, _motion_kernel, _photo
 from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map
 
-from signpose.core.fileio import atomic_path, ensure_dir
+from signpose.core.fileio import atomic_path, atomic_write, ensure_dir
 from signpose.io.camera_file import write_camera_info
 from signpose.io.tum import write_tum
 from signpose.sim.flight import SimSettings, simulated_camera
@@ -204,6 +205,19 @@ def write_flight(out_dir: Path, frames: int, width: int, height: int, seed: int 
             writer.release()
     write_camera_info(out / "camera.yaml", camera)
     write_tum(out / "groundtruth.tum", traj, ("scripts/independent_flight.py",))
+    return video
+
+
+def drawn_once(out_dir: Path, frames: int, width: int, height: int, stamp_name: str) -> Path:
+    """The flight's video in ``out_dir``, drawn only when ``stamp_name`` there does not
+    say it was drawn at this size (the benchmarks' cache); returns the video's path."""
+    stamp = out_dir / stamp_name
+    key = {"frames": frames, "width": width, "height": height}
+    video = out_dir / "video.mp4"
+    if not (stamp.is_file() and video.is_file() and json.loads(stamp.read_text()) == key):
+        write_flight(out_dir, frames, width, height)
+        with atomic_write(stamp) as f:
+            json.dump(key, f)
     return video
 
 
