@@ -220,26 +220,18 @@ def rim_runs(
 
 
 def _looks_like_a_bar(
-    gray: np.ndarray,
-    image_H_sign: np.ndarray,
-    band: Band,
-    black: float,
-    contrast: float,
-    both_ends: bool = True,
+    gray: np.ndarray, image_H_sign: np.ndarray, band: Band, black: float, contrast: float
 ) -> bool:
-    """Beyond both rim crossings (or beyond ``p0`` only) the band stays dark
-    between lighter sides.
+    """Beyond both rim crossings the band stays dark between lighter sides.
 
-    Points outside the crop show nothing and do not count against it, but
-    with one end only, that end must be seen.
+    Points outside the crop show nothing and do not count against it.
     """
     d = band.p1 - band.p0
     d = d / max(float(np.hypot(*d)), 1e-12)
     n = np.array([-d[1], d[0]])
     side = band.half_width + _BAR_SIDE_GAP
     pts = []
-    ends = ((band.p0, -d), (band.p1, d)) if both_ends else ((band.p0, -d),)
-    for end, out in ends:
+    for end, out in ((band.p0, -d), (band.p1, d)):
         for t in _BAR_BEYOND:
             q = end + t * out
             pts += [q, q + side * n, q - side * n]
@@ -248,11 +240,8 @@ def _looks_like_a_bar(
     seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     frac = ((_sample(gray, uv) - black) / contrast).reshape(-1, 3)
     seen = seen.reshape(-1, 3).all(axis=1)
-    if not both_ends and not seen.all():
-        return False
     centre, left, right = frac[:, 0], frac[:, 1], frac[:, 2]
-    lighter = np.maximum(left, right) if both_ends else np.minimum(left, right)
-    edged = (centre <= _DARK_FRAC) & (lighter - centre >= _BAR_EDGE_STEP)
+    edged = (centre <= _DARK_FRAC) & (np.maximum(left, right) - centre >= _BAR_EDGE_STEP)
     return bool((edged | ~seen).all())
 
 
