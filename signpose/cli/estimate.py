@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     camera = load_camera(args.camera)
     check_inputs(frames, sign_map, camera, str(args.observations))
     request = telemetry_request(args, log_input=False)
-    fusion_settings(args, request)  # the geometry options checked before any work
+    fusion = fusion_settings(args, request)  # the geometry options checked before any work
     check_geo_request(sign_map, args.geo)
     telemetry, notes = None, []
     if request is not None:
@@ -114,9 +114,14 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.fixed_motion_prior:
         settings = replace(settings, tune_motion=False)
-    fusion = fusion_settings(args, request) if request else None
     result = estimate_trajectories(
-        frames, sign_map, camera, settings, args.progress, telemetry=telemetry, fusion=fusion
+        frames,
+        sign_map,
+        camera,
+        settings,
+        args.progress,
+        telemetry=telemetry,
+        fusion=fusion if request else None,
     )
     refined = refine_flight(frames, sign_map, camera, result)
     written = write_outputs(args.out, result, refined)
