@@ -33,9 +33,19 @@ def scene():
     return mod
 
 
+def _scene_crop(scene, code: str, seed: int, **settings):
+    """Crop of ``code`` rendered by the independent scene with these ``SceneSettings``."""
+    return scene.render_scene_crop(
+        code, scene.SceneSettings(**settings), np.random.default_rng(seed)
+    )
+
+
 def test_a_glare_spot_where_a_slot_is_black_is_not_read_white(scene, monkeypatch):
     """1100 with a specular spot over black slot 3 was read 1110."""
-    s = scene.SceneSettings(
+    crop = _scene_crop(
+        scene,
+        "1100",
+        2,
         sign_px=86.0,
         rotation_deg=254.7,
         tilt_deg=7.5,
@@ -49,7 +59,6 @@ def test_a_glare_spot_where_a_slot_is_black_is_not_read_white(scene, monkeypatch
         noise_sigma=2.8,
         jpeg_quality=90,
     )
-    crop = scene.render_scene_crop("1100", s, np.random.default_rng(2))
     assert decode_roi(crop.image, PAPER_CODES).code in (None, "1100")
     monkeypatch.setattr(decoder, "_EDGE_CONTRAST", -1.0)  # no edge test
     assert decode_roi(crop.image, PAPER_CODES).code == "1110"
@@ -58,7 +67,10 @@ def test_a_glare_spot_where_a_slot_is_black_is_not_read_white(scene, monkeypatch
 def test_a_print_black_member_seen_at_one_rim_crossing_erases_the_slot(scene, monkeypatch):
     """1100 with slot 2 under a member as black as the print, on a dark photograph
     (one rim crossing shows): was read 1000."""
-    s = scene.SceneSettings(
+    crop = _scene_crop(
+        scene,
+        "1100",
+        26,
         sign_px=69.37006576905465,
         rotation_deg=37.27502726144793,
         tilt_deg=33.907560376844245,
@@ -72,7 +84,6 @@ def test_a_print_black_member_seen_at_one_rim_crossing_erases_the_slot(scene, mo
         jpeg_quality=89,
         bar_over_slot=2,
     )
-    crop = scene.render_scene_crop("1100", s, np.random.default_rng(26))
     assert crop.covered_slots == (2,)
     res = decode_roi(crop.image, PAPER_CODES)
     assert res.code is None and res.reason == DecodeReason.OCCLUDED
