@@ -858,10 +858,9 @@ class ChunkJob:
 
 @dataclass(frozen=True)
 class ChunkResult:
-    """One chunk observed: its frames (``frame`` = source position) and what reading met."""
+    """One chunk observed (its frames went to ``out`` or ``send``): what reading met."""
 
     number: int
-    frames: tuple[tuple[FrameObservations, tuple[RefusedObservation, ...]], ...]
     read: RangeRead
     timing_s: dict[str, float]
     tracked_frames: int
@@ -946,13 +945,13 @@ def run_chunk(
     Args:
         job: the chunk.
         det: the detector (default: ``job.make``'s, built once per process).
-        out: where the frames go as they finish (inline); None: into the result.
+        out: where the frames go as they finish (inline); None: to ``send``.
         source: the input, open (inline); None: ``job.spec`` opened once per process.
         send: where each frame goes as it finishes, when ``out`` is None (a worker
-            process's pipe); None: into the result.
+            process's pipe).
 
     Returns:
-        The ChunkResult (its frames empty when ``out`` or ``send`` was given).
+        The ChunkResult.
     """
     if source is None:
         source = _cached(("source", job.spec), job.spec.open)
@@ -960,15 +959,11 @@ def run_chunk(
         det = _cached(("detector", job.make, job.settings), lambda: job.make(job.settings))
     read = RangeRead(job.start, job.stop, job.size)
     tracker = FrameTracker(job.sign_map, job.camera, job.codes, job.settings)
-    frames: list[tuple[FrameObservations, tuple[RefusedObservation, ...]]] = []
-    if send is None:
-        send = lambda obs, refused: frames.append((obs, tuple(refused)))  # noqa: E731
     mine = _Collected(None, None, sink=send) if out is None else out
     before = dict(mine.timing), mine.tracked_frames, mine.full_frames
     _observe_chunk(read_range(source, read), tracker, det, mine, job.settings.prefetch)
     return ChunkResult(
         job.number,
-        tuple(frames),
         read,
         {k: v - before[0].get(k, 0.0) for k, v in mine.timing.items()},
         mine.tracked_frames - before[1],
@@ -1208,8 +1203,6 @@ def _merge(result: ChunkResult, out: _Collected) -> None:
         out.timing[key] += value
     out.tracked_frames += result.tracked_frames
     out.full_frames += result.full_frames
-    for obs, refused in result.frames:
-        out.add(obs, list(refused))
 
 
 def _lose(lost: LostChunk, out: _Collected) -> None:
