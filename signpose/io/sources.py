@@ -155,9 +155,9 @@ class FrameSource:
             InputError: no chunk read a frame.
         """
         good = sorted(p for r in reads for p in r.good)
+        odd = sorted(o for r in reads for o in r.odd)
         lines = list(self._notes) + [n for r in reads for n in r.notes]
-        lines += self._range_tail(reads, sorted(good + [o[0] for o in _odd(reads)]), to_end)
-        odd = _odd(reads)
+        lines += self._range_tail(reads, sorted(good + [o[0] for o in odd]), to_end)
         if odd:
             position, w, h = odd[0]
             size = next(r.size for r in reads if r.size is not None)
@@ -883,7 +883,3 @@ def read_range(source: FrameSource, read: RangeRead) -> Iterator[Frame]:
             continue
         read.good.append(frame.index)
         yield frame
-
-
-def _odd(reads: list[RangeRead]) -> list[tuple[int, int, int]]:
-    return sorted(o for r in reads for o in r.odd)
