@@ -677,7 +677,7 @@ def _golden(f, a: float, b: float, tol: float = 1e-5) -> float:
 
 
 def _gauss_newton_sigma(
-    residuals, best: float, r0: np.ndarray, ids: np.ndarray, noise_sigma: float | None
+    residuals, best: float, ids: np.ndarray, noise_sigma: float | None
 ) -> float:
     """The offset's sigma from the cost's curvature, on the items in all three evaluations.
 
@@ -754,8 +754,8 @@ def _scan_and_refine(
     if abs(best) >= s.clock_search_s - 2.5 * s.clock_step_s:
         log.warning("clock offset: the scan's best %+.3f s is at its edge; not determined", best)
         return ClockOffset(best, float("inf"), source)
-    r0, ids = residuals(best)
-    gn = _gauss_newton_sigma(residuals, best, r0, ids, noise_sigma)
+    ids = residuals(best)[1]
+    gn = _gauss_newton_sigma(residuals, best, ids, noise_sigma)
     if len(ids) < 2 * JACKKNIFE_BLOCKS:
         return ClockOffset(best, gn, source)
     est = np.array([scan(b) for b in np.array_split(np.unique(ids), JACKKNIFE_BLOCKS)])
