@@ -22,6 +22,7 @@ from signpose.core.errors import InputError
 from signpose.estimator.telemetry import Telemetry
 from signpose.io.mcap_read import McapLog
 from signpose.io.rosbag import is_bag_file, is_bag_folder, open_bag
+from signpose.io.telemetry_build import reasons
 from signpose.io.telemetry_csv import TIME_COLUMN, read_telemetry_csv
 from signpose.io.telemetry_ros import read_log_telemetry
 from signpose.io.telemetry_srt import read_srt
@@ -115,8 +116,7 @@ def describe(telemetry: Telemetry) -> str:
         parts.append(f"{len(telemetry.gimbal)} gimbal angles")
     line = f"telemetry {telemetry.source}: {', '.join(parts) or 'nothing'}"
     if telemetry.skipped:
-        skipped = ", ".join(f"{v} {k}" for k, v in sorted(telemetry.skipped.items()))
-        line += f"; skipped {skipped}"
+        line += f"; skipped {reasons(telemetry.skipped)}"
     return line
 
 

@@ -28,6 +28,11 @@ def count(skipped: dict[str, int], reason: str, n: int = 1) -> None:
         skipped[reason] = skipped.get(reason, 0) + n
 
 
+def reasons(skipped: dict[str, int]) -> str:
+    """The dropped samples for a message: ``"2 garbled, 1 no_fix"`` (by reason; "" for none)."""
+    return ", ".join(f"{v} {k}" for k, v in sorted(skipped.items()))
+
+
 def _increasing(t_s: np.ndarray, skipped: dict[str, int]) -> np.ndarray:
     """Mask of the samples whose time is after every earlier kept sample's."""
     # A sample is kept when it is after the running maximum of all earlier ones

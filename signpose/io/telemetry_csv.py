@@ -30,7 +30,13 @@ import numpy as np
 
 from signpose.core.errors import InputError
 from signpose.estimator.telemetry import Telemetry
-from signpose.io.telemetry_build import count, gimbal_angles, gnss_fixes, imu_samples
+from signpose.io.telemetry_build import (
+    count,
+    gimbal_angles,
+    gnss_fixes,
+    imu_samples,
+    reasons,
+)
 
 TIME_COLUMN = "t_s"
 GNSS_COLUMNS = ("lat_deg", "lon_deg", "height_m")
@@ -143,6 +149,5 @@ def _telemetry(p: Path, gnss: list, imu: list, gimbal: list, skipped: dict) -> T
     samples = imu_samples(i[:, 0], i[:, 1:4], i[:, 4:7], skipped) if len(i) else None
     angles = gimbal_angles(a[:, 0], a[:, 1], a[:, 2], a[:, 3], skipped) if len(a) else None
     if fixes is None and samples is None:
-        reasons = ", ".join(f"{v} {k}" for k, v in sorted(skipped.items())) or "no data rows"
-        raise InputError(f"{p}: no usable GNSS or IMU row ({reasons})")
+        raise InputError(f"{p}: no usable GNSS or IMU row ({reasons(skipped) or 'no data rows'})")
     return Telemetry(source=str(p), gnss=fixes, imu=samples, gimbal=angles, skipped=skipped)

@@ -28,7 +28,7 @@ import numpy as np
 from signpose.core.errors import InputError
 from signpose.estimator.telemetry import Telemetry
 from signpose.io.messages import LogChannel, LogMessage, MessageLog, message_stamp_ns
-from signpose.io.telemetry_build import count, gnss_fixes, imu_samples
+from signpose.io.telemetry_build import count, gnss_fixes, imu_samples, reasons
 
 NAVSATFIX = "sensor_msgs/msg/NavSatFix"
 LOCATION_FIX = "foxglove.LocationFix"
@@ -163,6 +163,6 @@ def read_log_telemetry(log: MessageLog, topics: Iterable[str] | None = None) -> 
     )
     imu = imu_samples(s[:, 0], s[:, 1:4], s[:, 4:7], skipped) if len(s) else None
     if gnss is None and imu is None:
-        reasons = ", ".join(f"{v} {k}" for k, v in sorted(skipped.items())) or "no messages"
-        raise InputError(f"{source}: the telemetry topics hold no usable sample ({reasons})")
+        why = reasons(skipped) or "no messages"
+        raise InputError(f"{source}: the telemetry topics hold no usable sample ({why})")
     return Telemetry(source=source, gnss=gnss, imu=imu, skipped=skipped)

@@ -35,7 +35,7 @@ import numpy as np
 
 from signpose.core.errors import InputError
 from signpose.estimator.telemetry import Telemetry
-from signpose.io.telemetry_build import count, gimbal_angles, gnss_fixes
+from signpose.io.telemetry_build import count, gimbal_angles, gnss_fixes, reasons
 
 MAX_SRT_BYTES = 512 << 20
 SIGMA_H_M = 2.0
@@ -146,10 +146,9 @@ def read_srt(path: str | Path, video_start_s: float = 0.0) -> Telemetry:
         a[:, 0], a[:, 1], a[:, 2], a[:, 3], skipped, np.full(n, SIGMA_H_M), np.full(n, SIGMA_V_M)
     )
     if gnss is None:
-        reasons = ", ".join(f"{v} {k}" for k, v in sorted(skipped.items()))
         raise InputError(
-            f"{p}: none of its {len(cues)} subtitles has a readable fix ({reasons}); expected "
-            "[latitude: ..] [longitude: ..] [abs_alt: ..] or the older [altitude: ..]"
+            f"{p}: none of its {len(cues)} subtitles has a readable fix ({reasons(skipped)}); "
+            "expected [latitude: ..] [longitude: ..] [abs_alt: ..] or the older [altitude: ..]"
         )
     g = np.array(gimbal_rows, dtype=float).reshape(-1, 4)
     gimbal = gimbal_angles(g[:, 0], g[:, 1], g[:, 2], g[:, 3], skipped) if len(g) else None

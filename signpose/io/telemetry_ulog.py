@@ -29,7 +29,7 @@ from pyulog import ULog
 
 from signpose.core.errors import InputError
 from signpose.estimator.telemetry import ImuSamples, Telemetry
-from signpose.io.telemetry_build import count, gnss_fixes, imu_samples
+from signpose.io.telemetry_build import count, gnss_fixes, imu_samples, reasons
 
 GNSS_TOPICS = ("sensor_gps", "vehicle_gps_position")
 IMU_TOPICS = ("sensor_combined", "vehicle_imu")
@@ -155,8 +155,8 @@ def read_ulog(path: str | Path) -> Telemetry:
         )
     gnss, shift = _gnss(p, _dataset(ulog, name), skipped)
     if gnss is None:
-        reasons = ", ".join(f"{v} {k}" for k, v in sorted(skipped.items())) or "none logged"
-        raise InputError(f"{p}: {name} holds no usable 3D fix ({reasons})")
+        why = reasons(skipped) or "none logged"
+        raise InputError(f"{p}: {name} holds no usable 3D fix ({why})")
     imu = None
     for imu_name in IMU_TOPICS:
         data = _dataset(ulog, imu_name)
