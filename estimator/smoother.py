@@ -919,15 +919,11 @@ class _WrittenOut:
 
     @staticmethod
     def of(net: gtsam.GaussianBayesNet, theta: gtsam.Values, end: int) -> _WrittenOut:
-        conds, ds = [], []
-        for k in range(net.size()):
-            c = net.at(k)
-            if c.get_model() is not None:
-                raise RuntimeError("iSAM2 window: a conditional with a noise model")
-            keys = c.keys()
-            conds.append(Conditional(keys[0], np.array(c.R()), tuple(keys[1:]), np.array(c.S())))
-            ds.append(np.array(c.d(), float).reshape(-1))
-        return _WrittenOut(tuple(conds), tuple(ds), theta, end)
+        conds = _net_conditionals(net)
+        if conds is None:
+            raise RuntimeError("iSAM2 window: a conditional with a noise model")
+        ds = tuple(np.array(net.at(k).d(), float).reshape(-1) for k in range(net.size()))
+        return _WrittenOut(tuple(conds), ds, theta, end)
 
     def back_substitute(self, final: gtsam.Values) -> None:
         """Insert the final estimate of each frame variable into ``final`` (its parents there)."""
