@@ -131,6 +131,8 @@ class Verification:
 
 
 _HALF_SQUARE = _LOCATION_SIDE / 2
+# The disc's rim (radius 0.5) [diameters]: it must lie inside the image.
+_DISC_RIM = _RIM / 0.46 * 0.5
 _DECODER_SETTINGS = DecoderSettings()
 
 
@@ -219,7 +221,7 @@ def verify_sign(
     ds = decoder_settings
     if major < max(settings.min_major_px, ds.min_sign_px) or minor < ds.min_axis_ratio * major:
         return _miss(VerifyOutcome.NOT_VERIFIABLE)
-    if not _inside(_project(image_H_sign, _RIM / 0.46 * 0.5), w, h, settings.edge_margin_px):
+    if not _inside(_project(image_H_sign, _DISC_RIM), w, h, settings.edge_margin_px):
         return _miss(VerifyOutcome.OUTSIDE)
     aligned, shift = _align(g, np.asarray(image_H_sign, float), settings)
     if aligned is None or shift > settings.max_shift * major:
@@ -289,7 +291,6 @@ def _refit_and_check(
     cents, valid, white_area = _subpixel_centroids(g, aligned, parts, first.black, first.white, 1.5)
     if not bool(valid.all()):
         return _miss(VerifyOutcome.NOT_FOUND)
-    deficit = _fill_deficit(aligned, parts, white_area, valid)
     h_ref, rms = _refit(aligned, parts, cents, ds)
     if h_ref is None:
         return _miss(VerifyOutcome.NOT_FOUND)
@@ -323,6 +324,7 @@ def _refit_and_check(
     ellipse = _safe_disc_ellipse(h_ref)
     if ellipse is None:
         return _miss(VerifyOutcome.NOT_VERIFIABLE)
+    deficit = _fill_deficit(aligned, parts, white_area, valid)
     uv = _project(h_ref, _PART_CENTRES[parts])
     result = _reading_result(
         code, parts, uv, h_ref, ellipse, first, rms, False, max(occ.disturbance, deficit), ()
