@@ -22,6 +22,7 @@ clock of an MP4's ``creation_time`` and of ROS logs) by the median of
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -85,7 +86,7 @@ def _gnss(p: Path, data: dict, skipped: dict[str, int]):
     keep = fix >= MIN_3D_FIX if fix is not None else np.ones(len(t), dtype=bool)
     count(skipped, "no_fix", int((~keep).sum()))
     eph, epv = _first(data, "eph"), _first(data, "epv")
-    if msl and h is not None:  # above the geoid, not the ellipsoid: weigh the height little
+    if msl:  # above the geoid, not the ellipsoid: weigh the height little
         epv = np.maximum(epv if epv is not None else 0.0, MSL_SIGMA_V_M) * np.ones(len(t))
     gnss = gnss_fixes(
         t[keep],
@@ -124,12 +125,6 @@ def _imu(data: dict, name: str, skipped: dict[str, int]) -> ImuSamples | None:
     return imu_samples(t, gyro * FRD_TO_FLU, accel * FRD_TO_FLU, skipped)
 
 
-def _shifted(imu: ImuSamples | None, shift: float) -> ImuSamples | None:
-    if imu is None or shift == 0.0:
-        return imu
-    return ImuSamples(imu.t_s + shift, imu.gyro_rad_s, imu.accel_m_s2)
-
-
 def read_ulog(path: str | Path) -> Telemetry:
     """Read a PX4 ULog's GNSS fixes and IMU samples.
 
@@ -164,13 +159,7 @@ def read_ulog(path: str | Path) -> Telemetry:
             imu = _imu(data, imu_name, skipped)
             if imu is not None:
                 break
-    if shift:
-        gnss = type(gnss)(
-            gnss.t_s + shift,
-            gnss.lat_deg,
-            gnss.lon_deg,
-            gnss.height_m,
-            gnss.sigma_h_m,
-            gnss.sigma_v_m,
-        )
-    return Telemetry(source=str(p), gnss=gnss, imu=_shifted(imu, shift), skipped=skipped)
+    if shift:  # onto UTC
+        gnss = replace(gnss, t_s=gnss.t_s + shift)
+        imu = replace(imu, t_s=imu.t_s + shift) if imu is not None else None
+    return Telemetry(source=str(p), gnss=gnss, imu=imu, skipped=skipped)
