@@ -248,15 +248,23 @@ def telemetry_name(pattern: str, input_path: Path) -> str:
         ) from None
 
 
+def _telemetry_found(job: FlightJob) -> tuple[str, str]:
+    """The flight's telemetry file name (with --telemetry) and its path beside it, or ""."""
+    inp = Path(job.input_path)
+    name = telemetry_name(job.telemetry, inp)
+    return name, _beside(inp, name)
+
+
 def _telemetry_beside(job: FlightJob) -> str:
     """The flight's telemetry file ("" without --telemetry); InputError when it is missing."""
     if not job.telemetry:
         return ""
-    inp = Path(job.input_path)
-    name = telemetry_name(job.telemetry, inp)
-    found = _beside(inp, name)
+    name, found = _telemetry_found(job)
     if not found:
-        raise InputError(f"{inp}: no telemetry file {name} beside it (--telemetry {job.telemetry})")
+        raise InputError(
+            f"{Path(job.input_path)}: no telemetry file {name} beside it "
+            f"(--telemetry {job.telemetry})"
+        )
     return found
 
 
@@ -457,8 +465,7 @@ def _telemetry_key(job: FlightJob) -> dict:
     """The telemetry's part of the fingerprint: nothing without --telemetry (old runs match)."""
     if not job.telemetry:
         return {}
-    inp = Path(job.input_path)
-    found = _beside(inp, telemetry_name(job.telemetry, inp))
+    _, found = _telemetry_found(job)
     return {
         "telemetry": content_digest(found) if found else "missing",
         "telemetry_offset_s": job.telemetry_offset_s,
