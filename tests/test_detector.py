@@ -72,9 +72,6 @@ def test_group_merge_wraps_opencv():
 @pytest.fixture(scope="module")
 def frame(tmp_path_factory):
     """One simulated 1080p frame of the demo pylon and its truth."""
-    from signpose.io.boxes import read_boxes
-    from signpose.sim.flight import SimSettings, simulate
-
     out = tmp_path_factory.mktemp("sim")
     simulate(
         load_map(bundled_map_path()),
