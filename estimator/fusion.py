@@ -1113,13 +1113,20 @@ def _extract(result: gtsam.Values, n: int) -> tuple[np.ndarray, np.ndarray]:
     return poses, vel
 
 
-def _fused_result(p: _Problem, g: _Graph, result: gtsam.Values, clock: ClockOffset, camera, t0):
+def _fused_result(
+    p: _Problem,
+    g: _Graph,
+    result: gtsam.Values,
+    order: gtsam.Ordering,
+    clock: ClockOffset,
+    camera,
+    t0,
+):
     b, s = p.b, p.s
     n = len(p.tel_stamps)
     poses, vel = _extract(result, n)
     n_lm = len(b.m.landmark_code)
     lms = np.array([result.atPoint3(gtsam.symbol("l", j)) for j in range(n_lm)]).reshape(-1, 3)
-    order = _ordering(p, n)
     cov6 = batch_covariances(g.graph, result, n, order) if s.smoother.compute_sigmas else None
     sigma = _sigmas_from(cov6, poses)
     gb, ab = np.zeros((n, 3)), np.zeros((n, 3))
@@ -1209,14 +1216,16 @@ def fuse_trajectory(
     poses, vel = _initial(vision.world_T_cam, _observed_and_signs(kept)[0], stamps, p.pims)
     # A redescending kernel needs a good start: a Huber solve first.
     kernels = [s.gnss_kernel] if s.gnss_kernel in ("huber", "none") else ["huber", s.gnss_kernel]
+    order = _ordering(p, len(stamps))
     try:
         for kernel in kernels if p.fixes is not None else kernels[-1:]:
             g = _build(p, poses, vel, kernel)
-            result = _solve(g, _ordering(p, len(stamps)), s)
+            result = _solve(g, order, s)
             poses, vel = _extract(result, len(stamps))
     except RuntimeError as exc:  # gtsam: an indeterminant system; the flight goes on
         log.warning("fusion failed (%s); the fused poses are the vision-only ones", exc)
         return _vision_only(vision, kept, camera, stamps, s, t0, failed=1)
     return replace(
-        _fused_result(p, g, result, clock, camera, t0), notes=_video_clock_note(clock, telemetry)
+        _fused_result(p, g, result, order, clock, camera, t0),
+        notes=_video_clock_note(clock, telemetry),
     )
