@@ -19,6 +19,7 @@ from tqdm import tqdm
 from signpose.core.closing import PublishOnExit
 from signpose.core.errors import OutputError
 from signpose.core.fileio import atomic_path
+from signpose.core.units import stamp_ns_from_s
 from signpose.estimator.camera import CameraModel
 from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.observations import FrameObservations
@@ -274,7 +275,7 @@ class _LocationFixes:
             rgba = _GNSS_RGBA if gnss else method_color(track.name, i)
             frame = GNSS_FRAME if gnss else camera_frame
             for k in range(len(track)):
-                t_ns = int(round(float(track.stamps_s[k]) * 1e9))
+                t_ns = stamp_ns_from_s(track.stamps_s[k])
                 msg = location_fix(
                     t_ns,
                     frame,
