@@ -267,17 +267,7 @@ def location_fix(
     if sigma_enu_m is not None:
         s = np.asarray(sigma_enu_m, dtype=float).reshape(3)
         if np.all(np.isfinite(s)):
-            cov = [
-                float(s[0] ** 2),
-                0.0,
-                0.0,
-                0.0,
-                float(s[1] ** 2),
-                0.0,
-                0.0,
-                0.0,
-                float(s[2] ** 2),
-            ]
+            cov = np.diag(s**2).ravel().tolist()
             kind = 2  # DIAGONAL_KNOWN
     msg = {
         "timestamp": stamp_dict(stamp_ns),
