@@ -821,6 +821,11 @@ def clock_shift_limit_s(
     return s.clock_max_shift * sigma_h_m / speed
 
 
+def _fuses_imu(telemetry: Telemetry, s: FusionSettings) -> bool:
+    """The IMU is used (clock scan, factors): asked for and at least two samples."""
+    return s.use_imu and telemetry.imu is not None and len(telemetry.imu) > 1
+
+
 def estimate_clock_offset(
     world_T_cam: np.ndarray,
     stamps_s: np.ndarray,
@@ -840,7 +845,7 @@ def estimate_clock_offset(
         return ClockOffset(float(s.clock_offset_s), 0.0, "fixed")
     if telemetry.clock_is_video:
         return ClockOffset(0.0, 0.0, "video")
-    if s.use_imu and telemetry.imu is not None and len(telemetry.imu) > 1:
+    if _fuses_imu(telemetry, s):
         res = _gyro_residuals(world_T_cam, stamps_s, observed, telemetry.imu, s)
         return _scan_and_refine(res, s, "gyro")
     g = telemetry.gnss
@@ -1203,7 +1208,7 @@ def fuse_trajectory(
         # the GNSS track of the geodetic outputs is not placed on it either.
         return _vision_only(vision, kept, camera, stamps, s, t0, refused=refusal)
     tel_stamps = stamps + clock.offset_s
-    use_imu = s.use_imu and telemetry.imu is not None and len(telemetry.imu) > 1
+    use_imu = _fuses_imu(telemetry, s)
     p = _Problem(
         b=_GraphBuilder(kept, stamps, camera, replace(s.smoother, motion=CONSTANT_VELOCITY)),
         telemetry=telemetry,
