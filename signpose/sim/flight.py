@@ -466,16 +466,13 @@ def telemetry_flight(sign_map: SignMap, settings: SimSettings, pad_s: float) -> 
 def _write_telemetry(
     sign_map: SignMap, settings: SimSettings, result: SimResult, tel: TelemetrySimSettings
 ) -> SimResult:
-    """Write telemetry.csv (clock offset rounded to 1 ms) and map.yaml with an origin."""
-    if sign_map.origin is None:
-        sign_map = replace(sign_map, origin=SIM_ORIGIN)
+    """Write telemetry.csv (clock offset rounded to 1 ms); ``sign_map`` has an origin."""
     tel = replace(tel, clock_offset_s=round(tel.clock_offset_s, 3))
     flight = telemetry_flight(sign_map, settings, tel.margin_s + abs(tel.clock_offset_s) + 0.01)
     rng = np.random.default_rng([settings.seed, 17])
     telemetry, _ = simulate_telemetry(flight, sign_map, rng, tel)
     path = result.out_dir / "telemetry.csv"
     write_telemetry_csv(path, telemetry)
-    write_map(result.map_path, sign_map)
     return replace(result, telemetry_path=path)
 
 
@@ -547,6 +544,8 @@ def simulate(
     write_boxes(result.boxes_path, truths)
     write_camera_info(result.camera_path, camera)
     write_tum(result.groundtruth_path, traj, (_flight_comment(settings, result),))
+    if telemetry is not None and sign_map.origin is None:  # map.yaml anchors the telemetry
+        sign_map = replace(sign_map, origin=SIM_ORIGIN)
     write_map(result.map_path, sign_map)
     if telemetry is not None:
         result = _write_telemetry(sign_map, settings, result, telemetry)
