@@ -46,7 +46,6 @@ from signpose.frontend.decoder import (
     _CODE_PARTS,
     _LOCATION_SIDE,
     _PART_CENTRES,
-    _PART_QUADS,
     _RIM,
     DecodeReason,
     DecodeResult,
@@ -57,6 +56,7 @@ from signpose.frontend.decoder import (
     _fill_deficit,
     _inside,
     _LazyFlag,
+    _parts_geometry,
     _project,
     _read_slots,
     _reading_result,
@@ -64,7 +64,7 @@ from signpose.frontend.decoder import (
     _safe_disc_ellipse,
     _subpixel_centroids,
 )
-from signpose.frontend.homography import fit_homography, polygon_centroids, prepare_source
+from signpose.frontend.homography import fit_homography, polygon_centroids
 
 
 class VerifyOutcome(enum.StrEnum):
@@ -250,30 +250,19 @@ def _refit(
     exact on the three, moves the parts' predicted centroids onto the
     measured ones.
     """
-    quads = _PART_QUADS[parts]
-    predicted = polygon_centroids(_project(aligned, quads.reshape(-1, 2)).reshape(quads.shape))
+    src, quads, flat_quads, prepared, _ = _parts_geometry(parts)
+    predicted = polygon_centroids(_project(aligned, flat_quads).reshape(quads.shape))
     if len(parts) < 4:
         a = cv2.getAffineTransform(predicted.astype(np.float32), cents.astype(np.float32))
         if not np.isfinite(a).all():
             return None, float("nan")
         return np.vstack([a, [0.0, 0.0, 1.0]]) @ aligned, float("nan")
-    src = _PART_CENTRES[parts]
     offset = predicted - _project(aligned, src) if ds.perspective_correction else 0.0
-    h = fit_homography(src, cents - offset, _prepared(parts))
+    h = fit_homography(src, cents - offset, prepared)
     if h is None or len(parts) == 4:
         return h, float("nan")
     resid = _project(h, src) + offset - cents
     return h, float(np.sqrt((resid**2).sum(axis=1).mean()))
-
-
-_PREPARED: dict[tuple[int, ...], tuple] = {}
-
-
-def _prepared(parts: list[int]) -> tuple:
-    key = tuple(parts)
-    if key not in _PREPARED:
-        _PREPARED[key] = prepare_source(_PART_CENTRES[list(key)])
-    return _PREPARED[key]
 
 
 def _refit_and_check(
