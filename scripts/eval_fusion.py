@@ -52,13 +52,14 @@ from signpose.maps.loader import bundled_map_path, load_map
 from signpose.core.fileio import atomic_write
 from signpose.sim.observations import SyntheticSettings, synthesize_observations
 from signpose.sim.telemetry import (
+    SIM_ORIGIN,
     TelemetrySimSettings,
     away_and_back,
     default_body_T_cam,
     simulate_telemetry,
 )
 
-ORIGIN = GeoOrigin(47.3769, 8.5417, 480.0)
+ORIGIN = SIM_ORIGIN  # the simulator's anchor for maps without an origin
 
 
 def rms(x: np.ndarray) -> float:
@@ -137,7 +138,7 @@ def georef_errors_m(centres: dict[str, np.ndarray], sign_map) -> np.ndarray:
     return np.array(out)
 
 
-def run_flight(seed: int, fps: float, offset: float, quick: bool) -> dict:
+def run_flight(seed: int, fps: float, offset: float) -> dict:
     """Every method on one flight; errors per region."""
     sign_map = replace(load_map(bundled_map_path()), origin=ORIGIN)
     camera = pinhole_camera(1920, 1080, 60.0)
@@ -415,7 +416,7 @@ def main(argv=None) -> int:
     flights = []
     for k in range(seeds):
         off = offsets[k % len(offsets)]
-        flights.append(run_flight(k, args.fps, off, args.quick))
+        flights.append(run_flight(k, args.fps, off))
         f = flights[-1]
         print(
             f"flight {k}: {f['frames']} frames, {f['gap_s']:.1f} s without signs, "
