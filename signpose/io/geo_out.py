@@ -47,7 +47,6 @@ GEO_METHODS = ("fused", "smoothed")
 CSV_NAME = "trajectory_wgs84.csv"
 GEOJSON_NAME = "trajectory.geojson"
 KML_NAME = "trajectory.kml"
-GEO_NAMES = (CSV_NAME, GEOJSON_NAME, KML_NAME)
 CSV_HEADER = (
     "t_s",
     "lat_deg",
