@@ -32,11 +32,11 @@ from signpose.estimator.fusion import FusionSettings, gimbal_from_world_R_cam, l
 from signpose.estimator.telemetry import GimbalAngles, GnssFixes, ImuSamples, Telemetry
 from signpose.estimator.trajectory import Trajectory
 from signpose.io.telemetry_csv import (
+    ALL_COLUMNS,
     GIMBAL_COLUMNS,
     GNSS_COLUMNS,
     IMU_COLUMNS,
     SIGMA_COLUMNS,
-    TIME_COLUMN,
 )
 from signpose.maps.geodesy import GeoOrigin, geodetic_from_enu
 from signpose.maps.loader import SignMap
@@ -452,9 +452,8 @@ def write_telemetry_csv(path: str | Path, telemetry: Telemetry) -> None:
     One row per GNSS fix, IMU sample or gimbal sample, in time order; the
     other streams' cells of a row are empty.
     """
-    header = (TIME_COLUMN, *GNSS_COLUMNS, *SIGMA_COLUMNS, *IMU_COLUMNS, *GIMBAL_COLUMNS)
     with atomic_write(path) as f:
-        f.write(CSV_MAGIC + "\n" + ",".join(header) + "\n")
+        f.write(CSV_MAGIC + "\n" + ",".join(ALL_COLUMNS) + "\n")
         for _, cells in _csv_rows(telemetry):
             f.write(",".join(cells) + "\n")
 
