@@ -1662,10 +1662,15 @@ def _position_errors(
     trajs: dict[str, Trajectory], gt: Trajectory | None, comparison: dict | None
 ) -> dict[str, float]:
     """method -> RMS position error [m]: the comparison's ATE where it has one."""
-    rmse = {} if gt is None else {k: position_rmse(v, gt) for k, v in trajs.items()}
-    for name, metrics in (comparison or {}).items():
-        if isinstance(metrics, dict) and metrics.get("ate_rmse_m") is not None:
-            rmse[name] = float(metrics["ate_rmse_m"])
+    ate = {
+        name: float(metrics["ate_rmse_m"])
+        for name, metrics in (comparison or {}).items()
+        if isinstance(metrics, dict) and metrics.get("ate_rmse_m") is not None
+    }
+    rmse = {}
+    if gt is not None:
+        rmse = {k: ate[k] if k in ate else position_rmse(v, gt) for k, v in trajs.items()}
+    rmse.update(ate)  # a name only the comparison has comes last
     return rmse
 
 
