@@ -44,7 +44,7 @@ from typing import NamedTuple, Protocol
 
 import cv2
 import numpy as np
-from signpose.frontend.decoder import DecodeResult, decode_region
+from signpose.frontend.decoder import DecodeResult, _translated, decode_region
 from signpose.frontend.observations import DEFAULT_SIGMA_PX, FrameObservations, SignObservation
 from signpose.frontend.verify import VerifyOutcome, verify_sign
 
@@ -803,7 +803,7 @@ class SignDetector:
             if i in done or p.image_H_sign is None or not self.settings.decode:
                 continue
             shift = _offset_near(p, found, offsets)
-            v = verify_sign(gray, _shifted_homography(p.image_H_sign, shift), p.code, codes)
+            v = verify_sign(gray, _translated(p.image_H_sign, shift), p.code, codes)
             outcomes[i] = v.outcome
             if v.ok:
                 found.append(_verified_observation(v.result))
@@ -943,17 +943,11 @@ def _offset_near(
     return offsets[k]
 
 
-def _shifted_homography(h: np.ndarray, shift: tuple[float, float]) -> np.ndarray:
-    """(3, 3) ``h`` followed by an image shift (du, dv) [px]."""
-    t = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
-    return t @ np.asarray(h, float)
-
-
 def _shifted_prediction(p: PredictedSign, shift: tuple[float, float]) -> PredictedSign:
     """``p`` moved by an image shift (du, dv) [px]."""
     if shift == (0.0, 0.0):
         return p
-    h = None if p.image_H_sign is None else _shifted_homography(p.image_H_sign, shift)
+    h = None if p.image_H_sign is None else _translated(p.image_H_sign, shift)
     centre = (p.center_px[0] + shift[0], p.center_px[1] + shift[1])
     return PredictedSign(p.code, centre, p.diameter_px, h)
 
