@@ -214,16 +214,17 @@ def verify_sign(
     if len(parts) < 3 or (allowed is not None and code not in allowed):
         return _miss(VerifyOutcome.NOT_VERIFIABLE)
     h, w = g.shape
-    ell = _safe_disc_ellipse(np.asarray(image_H_sign, float))
+    predicted = np.asarray(image_H_sign, float)
+    ell = _safe_disc_ellipse(predicted)
     if ell is None:
         return _miss(VerifyOutcome.NOT_VERIFIABLE)
     (_, _), (major, minor), _ = ell
     ds = decoder_settings
     if major < max(settings.min_major_px, ds.min_sign_px) or minor < ds.min_axis_ratio * major:
         return _miss(VerifyOutcome.NOT_VERIFIABLE)
-    if not _inside(_project(image_H_sign, _DISC_RIM), w, h, settings.edge_margin_px):
+    if not _inside(_project(predicted, _DISC_RIM), w, h, settings.edge_margin_px):
         return _miss(VerifyOutcome.OUTSIDE)
-    aligned, shift = _align(g, np.asarray(image_H_sign, float), settings)
+    aligned, shift = _align(g, predicted, settings)
     if aligned is None or shift > settings.max_shift * major:
         return _miss(VerifyOutcome.NOT_FOUND)
     first = _read_slots(g, aligned, ds)
