@@ -117,8 +117,20 @@ class TelemetrySimSettings:
     body_T_cam: np.ndarray | None = field(default=None, compare=False)
 
 
+class _PosesOfTime:
+    """``poses(t)`` from a flight's ``position(t)`` and ``rotations(t)``."""
+
+    def poses(self, t: np.ndarray) -> np.ndarray:
+        """(N, 4, 4) world_T_cam at video times ``t`` (N,) [s]."""
+        t = np.atleast_1d(np.asarray(t, float))
+        T = np.tile(np.eye(4), (len(t), 1, 1))
+        T[:, :3, 3] = self.position(t)
+        T[:, :3, :3] = self.rotations(t)
+        return T
+
+
 @dataclass(frozen=True)
-class FlightTruth:
+class FlightTruth(_PosesOfTime):
     """A continuous-time flight: ``pose(t)`` gives world_T_cam at video time t [s].
 
     Attributes:
@@ -182,14 +194,6 @@ class FlightTruth:
         yaw = self.yaw_away_rad(t) + ang[:, 0]
         ex, ez = np.array([1.0, 0, 0]), np.array([0, 0, 1.0])
         return _rots(self.up, yaw) @ R @ _rots(ex, ang[:, 1]) @ _rots(ez, ang[:, 2])
-
-    def poses(self, t: np.ndarray) -> np.ndarray:
-        """(N, 4, 4) world_T_cam at video times ``t`` (N,) [s]."""
-        t = np.atleast_1d(np.asarray(t, float))
-        T = np.tile(np.eye(4), (len(t), 1, 1))
-        T[:, :3, 3] = self.position(t)
-        T[:, :3, :3] = self.rotations(t)
-        return T
 
     def trajectory(self, fps: float) -> Trajectory:
         """The camera frames at ``fps`` over the flight (stamps from 0) [s]."""
@@ -459,7 +463,7 @@ def write_telemetry_csv(path: str | Path, telemetry: Telemetry) -> None:
 
 
 @dataclass(frozen=True)
-class SampledFlight:
+class SampledFlight(_PosesOfTime):
     """A flight given by its poses on a fine uniform time grid (``FlightTruth``'s interface).
 
     ``signpose simulate --telemetry`` samples the rendered trajectory's own
@@ -506,14 +510,6 @@ class SampledFlight:
         R = self.world_T_cam[:, :3, :3]
         w = log_so3(np.swapaxes(R[i], 1, 2) @ R[i + 1]) * a[:, None]
         return R[i] @ _exp_so3(w)
-
-    def poses(self, t: np.ndarray) -> np.ndarray:
-        """(N, 4, 4) world_T_cam at video times ``t`` (N,) [s]."""
-        t = np.atleast_1d(np.asarray(t, float))
-        T = np.tile(np.eye(4), (len(t), 1, 1))
-        T[:, :3, 3] = self.position(t)
-        T[:, :3, :3] = self.rotations(t)
-        return T
 
 
 def _exp_so3(w: np.ndarray) -> np.ndarray:
