@@ -724,12 +724,13 @@ def _scan_and_refine(
     ends at its edge).
     """
     grid = np.arange(-s.clock_search_s, s.clock_search_s + 0.5 * s.clock_step_s, s.clock_step_s)
+    at_grid = [residuals(float(o)) for o in grid]  # every scan's grid: computed once
     universe = np.zeros(0, np.int64)
     if missing_cost is not None:
-        universe = np.unique(np.concatenate([residuals(float(o))[1] for o in grid]))
+        universe = np.unique(np.concatenate([ids for _, ids in at_grid]))
 
-    def cost(offset: float, drop: np.ndarray | None = None) -> float:
-        r, ids = residuals(offset)
+    def cost(offset: float, drop: np.ndarray | None = None, got=None) -> float:
+        r, ids = residuals(offset) if got is None else got
         if drop is not None:
             r = r[~np.isin(ids, drop)]
         if missing_cost is None:
@@ -740,7 +741,7 @@ def _scan_and_refine(
         return (float(np.sum(r**2)) + (n_all - len(r)) * missing_cost) / (3 * n_all)
 
     def scan(drop: np.ndarray | None = None) -> float:
-        costs = np.array([cost(float(o), drop) for o in grid])
+        costs = np.array([cost(float(o), drop, at_grid[m]) for m, o in enumerate(grid)])
         if not np.isfinite(costs).any():
             return float("nan")
         k = int(np.nanargmin(costs))
