@@ -120,3 +120,23 @@ def gimbal_angles(
     if len(idx) == 0:
         return None
     return GimbalAngles(t[idx], yaw[idx], pitch[idx], roll[idx])
+
+
+def fixes_from_rows(rows: list, skipped: dict[str, int]) -> GnssFixes | None:
+    """``gnss_fixes`` of rows ``(t_s, lat_deg, lon_deg, height_m, sigma_h_m, sigma_v_m)``."""
+    f = np.array(rows, dtype=float).reshape(-1, 6)
+    if not len(f):
+        return None
+    return gnss_fixes(f[:, 0], f[:, 1], f[:, 2], f[:, 3], skipped, f[:, 4], f[:, 5])
+
+
+def imu_from_rows(rows: list, skipped: dict[str, int]) -> ImuSamples | None:
+    """``imu_samples`` of rows ``(t_s, gyro x y z, accel x y z)``."""
+    s = np.array(rows, dtype=float).reshape(-1, 7)
+    return imu_samples(s[:, 0], s[:, 1:4], s[:, 4:7], skipped) if len(s) else None
+
+
+def gimbal_from_rows(rows: list, skipped: dict[str, int]) -> GimbalAngles | None:
+    """``gimbal_angles`` of rows ``(t_s, yaw_deg, pitch_deg, roll_deg)``."""
+    a = np.array(rows, dtype=float).reshape(-1, 4)
+    return gimbal_angles(a[:, 0], a[:, 1], a[:, 2], a[:, 3], skipped) if len(a) else None

@@ -26,15 +26,13 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-import numpy as np
-
 from signpose.core.errors import InputError
 from signpose.estimator.telemetry import Telemetry
 from signpose.io.telemetry_build import (
     count,
-    gimbal_angles,
-    gnss_fixes,
-    imu_samples,
+    fixes_from_rows,
+    gimbal_from_rows,
+    imu_from_rows,
     reasons,
 )
 
@@ -138,16 +136,9 @@ def _sigma(cell: str) -> float:
 
 
 def _telemetry(p: Path, gnss: list, imu: list, gimbal: list, skipped: dict) -> Telemetry:
-    g = np.array(gnss, dtype=float).reshape(-1, 6)
-    i = np.array(imu, dtype=float).reshape(-1, 7)
-    a = np.array(gimbal, dtype=float).reshape(-1, 4)
-    fixes = (
-        gnss_fixes(g[:, 0], g[:, 1], g[:, 2], g[:, 3], skipped, g[:, 4], g[:, 5])
-        if len(g)
-        else None
-    )
-    samples = imu_samples(i[:, 0], i[:, 1:4], i[:, 4:7], skipped) if len(i) else None
-    angles = gimbal_angles(a[:, 0], a[:, 1], a[:, 2], a[:, 3], skipped) if len(a) else None
+    fixes = fixes_from_rows(gnss, skipped)
+    samples = imu_from_rows(imu, skipped)
+    angles = gimbal_from_rows(gimbal, skipped)
     if fixes is None and samples is None:
         raise InputError(f"{p}: no usable GNSS or IMU row ({reasons(skipped) or 'no data rows'})")
     return Telemetry(source=str(p), gnss=fixes, imu=samples, gimbal=angles, skipped=skipped)

@@ -28,7 +28,7 @@ import numpy as np
 from signpose.core.errors import InputError
 from signpose.estimator.telemetry import Telemetry
 from signpose.io.messages import LogChannel, LogMessage, MessageLog, message_stamp_ns
-from signpose.io.telemetry_build import count, gnss_fixes, imu_samples, reasons
+from signpose.io.telemetry_build import count, fixes_from_rows, imu_from_rows, reasons
 
 NAVSATFIX = "sensor_msgs/msg/NavSatFix"
 LOCATION_FIX = "foxglove.LocationFix"
@@ -154,14 +154,8 @@ def read_log_telemetry(log: MessageLog, topics: Iterable[str] | None = None) -> 
             (fixes if is_gnss else samples).append(row)
     if log.problem:
         count(skipped, "truncated")
-    f = np.array(fixes, dtype=float).reshape(-1, 6)
-    s = np.array(samples, dtype=float).reshape(-1, 7)
-    gnss = (
-        gnss_fixes(f[:, 0], f[:, 1], f[:, 2], f[:, 3], skipped, f[:, 4], f[:, 5])
-        if len(f)
-        else None
-    )
-    imu = imu_samples(s[:, 0], s[:, 1:4], s[:, 4:7], skipped) if len(s) else None
+    gnss = fixes_from_rows(fixes, skipped)
+    imu = imu_from_rows(samples, skipped)
     if gnss is None and imu is None:
         why = reasons(skipped) or "no messages"
         raise InputError(f"{source}: the telemetry topics hold no usable sample ({why})")

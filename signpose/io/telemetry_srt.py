@@ -31,11 +31,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import numpy as np
-
 from signpose.core.errors import InputError
 from signpose.estimator.telemetry import Telemetry
-from signpose.io.telemetry_build import count, gimbal_angles, gnss_fixes, reasons
+from signpose.io.telemetry_build import count, fixes_from_rows, gimbal_from_rows, reasons
 
 MAX_SRT_BYTES = 512 << 20
 SIGMA_H_M = 2.0
@@ -139,17 +137,12 @@ def read_srt(path: str | Path, video_start_s: float = 0.0) -> Telemetry:
         if lat is None or lon is None or height is None:
             count(skipped, "garbled")
             continue
-        rows.append((t, lat, lon, height))
-    a = np.array(rows, dtype=float).reshape(-1, 4)
-    n = len(a)
-    gnss = gnss_fixes(
-        a[:, 0], a[:, 1], a[:, 2], a[:, 3], skipped, np.full(n, SIGMA_H_M), np.full(n, SIGMA_V_M)
-    )
+        rows.append((t, lat, lon, height, SIGMA_H_M, SIGMA_V_M))
+    gnss = fixes_from_rows(rows, skipped)
     if gnss is None:
         raise InputError(
             f"{p}: none of its {len(cues)} subtitles has a readable fix ({reasons(skipped)}); "
             "expected [latitude: ..] [longitude: ..] [abs_alt: ..] or the older [altitude: ..]"
         )
-    g = np.array(gimbal_rows, dtype=float).reshape(-1, 4)
-    gimbal = gimbal_angles(g[:, 0], g[:, 1], g[:, 2], g[:, 3], skipped) if len(g) else None
+    gimbal = gimbal_from_rows(gimbal_rows, skipped)
     return Telemetry(source=str(p), gnss=gnss, gimbal=gimbal, skipped=skipped, clock_is_video=True)
