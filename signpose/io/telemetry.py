@@ -90,7 +90,8 @@ def read_requested(
     request: TelemetryRequest, input_path: str | os.PathLike, video_start_s: float = 0.0
 ) -> Telemetry:
     """The telemetry a request names (the input log itself when its path is None)."""
-    if request.path is None:
+    p = request.path
+    if p is None:
         p = Path(input_path)
         try:
             kind = _kind(p) if p.exists() else None
@@ -101,8 +102,7 @@ def read_requested(
                 f"{p}: --telemetry-topic without --telemetry reads the input log, and this is "
                 "not an MCAP / rosbag2 log; pass --telemetry FILE"
             )
-        return read_telemetry(p, request.topic, video_start_s=video_start_s)
-    return read_telemetry(request.path, request.topic, video_start_s=video_start_s)
+    return read_telemetry(p, request.topic, video_start_s=video_start_s)
 
 
 def describe(telemetry: Telemetry) -> str:
