@@ -90,7 +90,6 @@ def _marginals(meas, stamps, poses, camera, settings, m: int) -> dict:
     t, c = time.perf_counter(), time.process_time()
     fast = batch_covariances(g.graph, g.values, m, order)
     t_fast, c_fast = time.perf_counter() - t, time.process_time() - c
-    order = b.ordered(chain_ordering(m, len(sub.landmark_code), settings.motion))
     t, c = time.perf_counter(), time.process_time()
     slow = batch_covariances(g.graph, g.values, m, order, per_pose=True)
     t_slow, c_slow = time.perf_counter() - t, time.process_time() - c
