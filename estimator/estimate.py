@@ -21,7 +21,13 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
-from signpose.estimator.fusion import FusionResult, FusionSettings, fuse_trajectory, on_smoother
+from signpose.estimator.fusion import (
+    FusionResult,
+    FusionSettings,
+    fuse_trajectory,
+    on_smoother,
+    pose_statuses,
+)
 from signpose.estimator.perframe import (
     FramePose,
     PerFrameSettings,
@@ -287,29 +293,17 @@ def _smoothed_status(
     Ill-conditioned means a worst-axis marginal sigma above the setting (the
     frame's own keypoints' when the marginals were not computed).
     """
-    order = np.argsort(kept.frame, kind="stable")
-    starts = np.searchsorted(kept.frame[order], np.arange(kept.n_frames + 1))
-    out = []
-    for i in range(kept.n_frames):
-        ids = order[starts[i] : starts[i + 1]]
-        if len(ids) == 0:
-            out.append(PoseStatus.BRIDGED)
-            continue
-        T = r.world_T_cam[i]
-        world = r.landmarks_world[kept.landmark[ids]]
-        uv, _, _ = pixels_and_pose_jacobian(camera, T, world)
-        chi2 = float(np.sum(((kept.px[ids] - uv) / kept.sigma_px[ids, None]) ** 2))
-        if np.all(np.isfinite(r.sigma_xyz[i])):  # the marginal: what the user is given
-            worst = float(np.max(r.sigma_xyz[i]))
-        else:  # no marginals: how well the frame's own keypoints fix it
-            lm = kept.landmark[ids]
-            sign_id = np.unique(np.asarray(kept.landmark_code)[lm], return_inverse=True)[1]
-            cov = pose_covariance(
-                camera, T, world, kept.sigma_px[ids], kept.landmark_sigma_m[lm], sign_id
-            )
-            worst = worst_axis_sigma(cov, T[:3, :3])
-        out.append(classify(len(ids), worst, chi2, 2 * len(ids), st))
-    return tuple(out)
+
+    def own(ids: np.ndarray, T: np.ndarray, world: np.ndarray) -> float:
+        # No marginals: how well the frame's own keypoints fix it.
+        lm = kept.landmark[ids]
+        sign_id = np.unique(np.asarray(kept.landmark_code)[lm], return_inverse=True)[1]
+        cov = pose_covariance(
+            camera, T, world, kept.sigma_px[ids], kept.landmark_sigma_m[lm], sign_id
+        )
+        return worst_axis_sigma(cov, T[:3, :3])
+
+    return pose_statuses(kept, r.world_T_cam, r.landmarks_world, r.sigma_xyz, camera, st, own)
 
 
 def _from_smoother(

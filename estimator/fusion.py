@@ -995,11 +995,15 @@ def _solve(g: _Graph, order: gtsam.Ordering, s: FusionSettings) -> gtsam.Values:
     return result
 
 
-def _statuses(
-    kept, poses: np.ndarray, landmarks: np.ndarray, sigma_xyz: np.ndarray, camera, st
+def pose_statuses(
+    kept, poses: np.ndarray, landmarks: np.ndarray, sigma_xyz: np.ndarray, camera, st, own=None
 ) -> tuple[PoseStatus, ...]:
     """Per frame: ``bridged`` without kept keypoints, else ``classify`` on its residuals
-    and its marginal's worst axis (as the smoothed method's statuses)."""
+    and its marginal's worst axis (the smoothed and the fused methods' statuses).
+
+    Where the marginal is not finite the worst axis is ``own(ids, world_T_cam,
+    world_points)`` (how well the frame's own keypoints fix it), inf without ``own``.
+    """
     order = np.argsort(kept.frame, kind="stable")
     starts = np.searchsorted(kept.frame[order], np.arange(len(poses) + 1))
     out = []
@@ -1008,9 +1012,13 @@ def _statuses(
         if len(ids) == 0:
             out.append(PoseStatus.BRIDGED)
             continue
-        uv, _, _ = pixels_and_pose_jacobian(camera, poses[i], landmarks[kept.landmark[ids]])
+        world = landmarks[kept.landmark[ids]]
+        uv, _, _ = pixels_and_pose_jacobian(camera, poses[i], world)
         chi2 = float(np.sum(((kept.px[ids] - uv) / kept.sigma_px[ids, None]) ** 2))
-        worst = float(np.max(sigma_xyz[i])) if np.all(np.isfinite(sigma_xyz[i])) else math.inf
+        if np.all(np.isfinite(sigma_xyz[i])):  # the marginal: what the user is given
+            worst = float(np.max(sigma_xyz[i]))
+        else:
+            worst = math.inf if own is None else own(ids, poses[i], world)
         out.append(classify(len(ids), worst, chi2, 2 * len(ids), st))
     return tuple(out)
 
@@ -1061,7 +1069,7 @@ def _vision_only(
         world_T_cam=vision.world_T_cam.copy(),
         sigma_xyz=vision.sigma_xyz.copy(),
         cov6=vision.cov6,
-        status=_statuses(
+        status=pose_statuses(
             kept, vision.world_T_cam, vision.landmarks_world, vision.sigma_xyz, camera, s.status
         ),
         observed=vision.observed.copy(),
@@ -1149,7 +1157,7 @@ def _fused_result(
         world_T_cam=poses,
         sigma_xyz=sigma,
         cov6=cov6,
-        status=_statuses(b.m, poses, lms, sigma, camera, s.status),
+        status=pose_statuses(b.m, poses, lms, sigma, camera, s.status),
         observed=observed,
         signs_used=signs,
         velocity_world_m_s=vel,
