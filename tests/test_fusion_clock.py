@@ -189,7 +189,11 @@ def test_estimate_trajectories_has_no_fused_method_on_a_guessed_clock(flight, si
 
 
 def test_mounting_angles_turn_the_default_camera():
-    assert np.allclose(body_T_cam_from_mounting(0, 0, 0), default_body_T_cam())
+    # Written out, not derived: the camera looks along body x (FLU), image right = body -y,
+    # image down = body -z (the simulator's default_body_T_cam is now this very function).
+    looking_forward = [[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 0], [0, 0, 0, 1]]
+    assert np.allclose(body_T_cam_from_mounting(0, 0, 0), looking_forward)
+    assert np.allclose(default_body_T_cam(), looking_forward)
     T = np.array(body_T_cam_from_mounting(0.0, 45.0, 0.0))
     h = math.sqrt(0.5)
     assert np.allclose(T[:3, 2], [h, 0, -h])  # optical axis 45 deg down (FLU)
