@@ -50,7 +50,7 @@ Then, beyond the paper:
 * the paper's first robustness rule: a code that is not in ``codes`` (the
   map's codes) is dropped (``code_not_in_map``).
 * keypoint noise: ``keypoint_sigma_px`` per keypoint and axis from
-  ``SigmaModel``, calibrated against the simulator by
+  ``frontend.keypoint_noise``, calibrated against the simulator by
   scripts/calibrate_sigma.py.
 
 Image coordinates: pixel centres at integers (OpenCV), u right, v down. The
@@ -76,6 +76,15 @@ from signpose.frontend.homography import (
     fit_homography,
     polygon_centroids,
     prepare_source,
+)
+
+# The sigma model lives in its own module; these names stay importable from here.
+from signpose.frontend.keypoint_noise import (  # noqa: F401
+    SIGMA_MODEL,
+    SigmaInputs,
+    SigmaModel,
+    keypoint_sigmas,
+    mean_sigma,
 )
 from signpose.frontend.sign import (
     ALL_CODES,
@@ -816,97 +825,6 @@ def _inside(points: np.ndarray, w: int, h: int, margin: float) -> bool:
     )
 
 
-@dataclass(frozen=True)
-class SigmaModel:
-    """Keypoint noise from what the decoder sees, calibrated by scripts/calibrate_sigma.py.
-
-    ``sigma^2 = floor^2 + (size / minor)^2 + (spread_px2 * spread / minor)^2
-    + (residual * rms)^2 + (disturbance * disturbance_in * minor)^2``, times the
-    ``direction`` or ``slot`` factor for those keypoints and ``occluded`` when
-    an occluder crosses the face (its parts are dropped, but a band's edge
-    still pulls the neighbours' centroids).
-
-    Attributes:
-        floor_px: error left on large clean signs [px].
-        size_px2: size term [px^2]: sampling and blur, over the disc's minor axis [px].
-        spread_px2: noise term [px^2], per unit of the black samples' spread.
-        residual: factor on the homography fit's RMS residual (more than four parts).
-        disturbance: error, as a fraction of the disc's minor axis, per unit
-            of ``SigmaInputs.disturbance`` (a line or dirt across a part kept
-            pulls its centroid by a share of the part's size).
-        direction, slot: factors for those keypoint kinds (the centre's is 1).
-        direction_size_px2: the directional keypoint's own size term [px^2].
-        occluded: factor when the face shows an occluder.
-    """
-
-    floor_px: float = 0.0207
-    size_px2: float = 0.0
-    spread_px2: float = 0.0
-    residual: float = 0.234
-    disturbance: float = 0.0131
-    direction: float = 2.02
-    direction_size_px2: float = 0.0
-    slot: float = 0.909
-    occluded: float = 40.0
-
-
-# Calibrated by scripts/calibrate_sigma.py --n 150 (seed 11) against the
-# simulator's truth (signpose.sim.crops); its fit drove the size and spread
-# terms to zero (the disturbance and residual terms carry what they would).
-SIGMA_MODEL = SigmaModel()
-
-
-@dataclass(frozen=True)
-class SigmaInputs:
-    """What the decoder saw of one sign, the inputs of ``keypoint_sigmas``.
-
-    Attributes:
-        minor_px: the disc's minor axis [px].
-        spread: interquartile spread of the disc's black samples, as a
-            fraction of white - black.
-        residual_px: RMS residual of the homography fit [px] (NaN: exact fit).
-        crossed: an occluder crosses the face (its parts are dropped).
-        disturbance: the larger of 1 - the least white fraction inside the
-            parts kept and their largest fill deficit (``_Refined``).
-    """
-
-    minor_px: float
-    spread: float
-    residual_px: float
-    crossed: bool
-    disturbance: float = 0.0
-
-
-def keypoint_sigmas(
-    inputs: SigmaInputs, names: Iterable[str], model: SigmaModel = SIGMA_MODEL
-) -> dict[str, tuple[float, float]]:
-    """Per keypoint (sigma_u, sigma_v) [px] under ``model``.
-
-    The two axes are equal: on the calibration sets the measured u and v
-    errors differ by less than the model's own spread across conditions.
-    """
-    m = model
-    minor = max(inputs.minor_px, 1.0)
-    rms = inputs.residual_px if math.isfinite(inputs.residual_px) else 0.0
-    base2 = (
-        m.floor_px**2
-        + (m.size_px2 / minor) ** 2
-        + (m.spread_px2 * inputs.spread / minor) ** 2
-        + (m.residual * rms) ** 2
-        + (m.disturbance * inputs.disturbance * minor) ** 2
-    )
-    base = math.sqrt(base2) * (m.occluded if inputs.crossed else 1.0)
-    out = {}
-    for name in names:
-        if name == "direction":
-            # The thin rectangle is a few pixels wide: its size term is its own.
-            s = math.hypot(base * m.direction, m.direction_size_px2 / minor)
-        else:
-            s = base * (1.0 if name == "center" else m.slot)
-        out[name] = (s, s)
-    return out
-
-
 def _as_gray(image: np.ndarray) -> np.ndarray:
     img = np.asarray(image)
     if img.ndim == 3:
@@ -973,13 +891,8 @@ def _crossed_by_a_line(res: DecodeResult) -> DecodeResult:
         res,
         sigma_inputs=inputs,
         keypoint_sigma_px=sigmas,
-        sigma_px=_mean_sigma(sigmas),
+        sigma_px=mean_sigma(sigmas),
     )
-
-
-def _mean_sigma(sigmas: dict[str, tuple[float, float]]) -> float:
-    """One sigma for all keypoints [px]: the geometric mean of the axes' sigmas."""
-    return float(np.sqrt(np.mean([su * sv for su, sv in sigmas.values()])))
 
 
 def _open_kernel(g: np.ndarray) -> np.ndarray:
@@ -1607,7 +1520,7 @@ def _reading_result(
         keypoints_px={n: (float(p[0]), float(p[1])) for n, p in zip(names, uv, strict=True)},
         ellipse=ellipse,
         quality=float(quality),
-        sigma_px=_mean_sigma(sigmas),
+        sigma_px=mean_sigma(sigmas),
         image_H_sign=image_H_sign,
         residual_px=rms,
         erased_slots=erased,

@@ -3,10 +3,10 @@
 
 Renders crops with ``signpose.sim.crops.render_crop`` in the conditions of
 ``scripts/eval_decoder.py`` (its main mix and each Table 3 condition),
-decodes them, and fits ``frontend.decoder.SigmaModel`` so that
+decodes them, and fits ``frontend.keypoint_noise.SigmaModel`` so that
 rms(error / sigma) is close to 1 for every condition and keypoint kind
 (least squares on log rms(z), Nelder-Mead on the log parameters). Prints the
-table before and after, and the fitted model to paste into decoder.py.
+table before and after, and the fitted model to paste into frontend/keypoint_noise.py.
 
 The independent scenes (``scripts/eval_decoder.py --independent``) are the
 check on data the fit never saw.
@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
-from signpose.frontend.decoder import SIGMA_MODEL, SigmaModel, decode_roi, keypoint_sigmas
+from signpose.frontend.decoder import decode_roi
+from signpose.frontend.keypoint_noise import SIGMA_MODEL, SigmaModel, keypoint_sigmas
 from tqdm import tqdm
 
 from signpose.core.fileio import atomic_write
