@@ -85,6 +85,7 @@ from signpose.frontend.keypoint_noise import (  # noqa: F401
     SigmaModel,
     keypoint_sigmas,
     mean_sigma,
+    part_residuals_px,
 )
 from signpose.frontend.sign import (
     ALL_CODES,
@@ -1484,6 +1485,12 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
         bool(occ.covered_parts),
         max(occ.disturbance, refined.fill_deficit),
         erased,
+        part_residuals_px(
+            refined.image_H_sign,
+            [_PART_NAMES[p] for p in refined.used_parts],
+            _PART_QUADS[refined.used_parts],
+            refined.centroids_px,
+        ),
     )
 
 
@@ -1498,10 +1505,12 @@ def _reading_result(
     crossed: bool,
     disturbance: float,
     erased: tuple[int, ...],
+    part_residual_px: dict[str, tuple[float, float]] | None = None,
 ) -> DecodeResult:
     """An accepted reading as a ``DecodeResult``: quality from the reading's
     margin and the fit's residual ``rms`` [px], keypoints ``uv`` of ``parts``
-    with their sigmas (``keypoint_sigmas``)."""
+    with their sigmas (``keypoint_sigmas``; ``part_residual_px``: each part's
+    own residual, ``keypoint_noise.part_residuals_px``)."""
     quality = min(max(reading.margin / 0.5, 0.0), 1.0) * math.exp(
         -(rms if math.isfinite(rms) else 0.0) / 0.5
     )
@@ -1512,6 +1521,7 @@ def _reading_result(
         residual_px=rms,
         crossed=crossed,
         disturbance=disturbance,
+        part_residual_px=part_residual_px or {},
     )
     sigmas = keypoint_sigmas(inputs, names)
     return DecodeResult(
