@@ -22,7 +22,9 @@ Factor graph:
     * a very weak prior on the first pose (and velocity), so that every
       iSAM2 step is well posed even before the first sign is seen.
 
-Solvers: batch Levenberg-Marquardt (or ``gtsam.GncLMOptimizer``) and iSAM2
+Solvers: batch Gauss-Newton (its last Bayes net gives the marginals;
+Levenberg-Marquardt takes over from a step that does not decrease the error;
+``gtsam.GncLMOptimizer`` for GNC) and iSAM2
 (whose estimate of the newest frame after each update is the causal,
 filter-like result). Also: the Laplace-approximated evidence of a motion
 prior (``log_evidence``), the graph's covariances at given poses (the
@@ -137,10 +139,12 @@ class SmootherSettings:
         first_sigma_rad: the weak prior on the first rotation [rad].
         first_sigma_mps: the weak prior on the first velocity [m/s].
         min_dt_s: time steps are clamped to at least this [s].
-        lm_max_iterations: Levenberg-Marquardt iteration cap.
-        lm_rel_tol: Levenberg-Marquardt relative error decrease tolerance
+        lm_max_iterations: Gauss-Newton (and Levenberg-Marquardt) iteration cap.
+        lm_rel_tol: relative error decrease tolerance of the batch solve
             (1e-5: 3 iterations from per-frame PnP, 0.03 mm from the solution
             converged to 1e-9; 1e-7 took a 4th iteration for 0.004 mm).
+            Gauss-Newton stops when a step's predicted decrease is below it
+            (the same steps as gtsam's LM, poses within 2e-9 m of its).
         segment_frames: segment length of the batch elimination ordering
             (see ``segmented_ordering``).
         isam_relinearize_threshold: iSAM2 relinearisation threshold.
@@ -660,6 +664,64 @@ def _lm_params(b: _GraphBuilder) -> gtsam.LevenbergMarquardtParams:
     return params
 
 
+@dataclass(frozen=True)
+class _Solved:
+    """A batch solve: the solution and the Bayes net that gives its marginals.
+
+    ``net`` is the graph linearised at ``linearised_at`` (the estimate one
+    Gauss-Newton step before ``values``: that step's predicted decrease was
+    below the tolerance) and eliminated in ``order``; None when the solve
+    fell back to Levenberg-Marquardt (the marginals then linearise again).
+    """
+
+    values: gtsam.Values
+    iterations: int
+    net: gtsam.GaussianBayesNet | None
+    order: gtsam.Ordering
+
+
+def _gauss_newton(g: _BatchGraph, b: _GraphBuilder, abs_tol: float = 0.0) -> _Solved:
+    """Gauss-Newton steps from ``g.values``, each one sequential elimination in the segmented order.
+
+    Stops when a step's decrease, predicted by its Bayes net (``0.5 sum |d|^2``)
+    or achieved, is below ``lm_rel_tol`` of the error (Levenberg-Marquardt's
+    relative test, one step earlier: the net of the last linearisation is kept
+    for the marginals instead of linearising and eliminating once more at the
+    solution). A step that does not decrease the error, or an elimination that
+    fails, hands over to gtsam's Levenberg-Marquardt from the last estimate.
+    """
+    s, n = b.s, b.m.n_frames
+    order = b.ordered(segmented_ordering(n, len(b.m.landmark_code), s.motion, s.segment_frames))
+    values = g.values
+    error = g.graph.error(values)
+    for it in range(s.lm_max_iterations):
+        try:
+            net = g.graph.linearize(values).eliminateSequential(order)
+        except RuntimeError:
+            net = None
+        if net is None:
+            break
+        delta = net.optimize()
+        zero = gtsam.VectorValues(delta)
+        zero.setZero()
+        predicted = net.error(zero)
+        new = values.retract(delta)
+        new_error = g.graph.error(new)
+        if not new_error <= error:  # also NaN: damping from here
+            break
+        small = max(predicted, error - new_error) <= s.lm_rel_tol * error
+        values, error = new, new_error
+        if small or error <= abs_tol:
+            return _Solved(values, it + 1, net, order)
+    else:
+        return _Solved(values, s.lm_max_iterations, None, order)
+    params = _lm_params(b)
+    params.setAbsoluteErrorTol(abs_tol)
+    opt = gtsam.LevenbergMarquardtOptimizer(g.graph, values, params)
+    result = opt.optimize()
+    return _Solved(result, it + int(opt.iterations()), None, order)
+
+
 def smooth_batch(
     meas: Measurements,
     stamps_s: np.ndarray,
@@ -675,9 +737,14 @@ def smooth_batch(
     b = _GraphBuilder(meas, stamps_s, camera, s)
     g = _batch_graph(b, _fill_initial(init_world_T_cam, default_world_T_cam), stamps_s)
     t_build = time.perf_counter() - t0
-    params = _lm_params(b)
-    params.setAbsoluteErrorTol(1e-9)
-    result, iterations, weights = _optimize(g, params, s)
+    solved, weights = None, None
+    if s.kernel == GNC:
+        params = _lm_params(b)
+        params.setAbsoluteErrorTol(1e-9)
+        result, iterations, weights = _optimize(g, params, s)
+    else:
+        solved = _gauss_newton(g, b, abs_tol=1e-9)
+        result, iterations = solved.values, solved.iterations
     seconds = time.perf_counter() - t0
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
     lms = np.array([result.atPoint3(L(j)) for j in range(len(meas.landmark_code))]).reshape(-1, 3)
@@ -685,11 +752,15 @@ def smooth_batch(
     sigma_seconds = 0.0
     if _want_sigmas(s, n):
         t1 = time.perf_counter()
-        graph = g.graph
-        if weights is not None:  # the marginals of the graph GNC converged to
-            graph = _without(graph, g.projection_factor[weights < 0.5])
-        order = b.ordered(chain_ordering(n, len(meas.landmark_code), s.motion))
-        cov6 = batch_covariances(graph, result, n, order)
+        cov6 = _net_covariances(solved, n)
+        if cov6 is None:
+            graph = g.graph
+            if weights is not None:  # the marginals of the graph GNC converged to
+                graph = _without(graph, g.projection_factor[weights < 0.5])
+            order = b.ordered(
+                segmented_ordering(n, len(meas.landmark_code), s.motion, s.segment_frames)
+            )
+            cov6 = batch_covariances(graph, result, n, order)
         sigma_seconds = time.perf_counter() - t1
     observed, signs = _observed_and_signs(meas)
     return SmootherResult(
@@ -706,6 +777,14 @@ def smooth_batch(
         cov6=cov6,
         weights=weights,
     )
+
+
+def _net_covariances(solved: _Solved | None, n: int) -> np.ndarray | None:
+    """(N, 6, 6) pose covariances from the solve's last Bayes net, or None without one."""
+    if solved is None or solved.net is None:
+        return None
+    conds = _net_conditionals(solved.net)
+    return None if conds is None else _pose_covariances(conds, n)
 
 
 def _without(graph: gtsam.NonlinearFactorGraph, drop: np.ndarray) -> gtsam.NonlinearFactorGraph:
