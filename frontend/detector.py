@@ -25,8 +25,12 @@ windows of different sizes that overlap enough become one);
   (``refresh``), so its results depend only on its arguments (and a flight's
   observations not on which thread ran which frame).
 
-Each merged region goes to ``frontend.decoder.decode_region``; regions that
-do not decode are dropped and counted (``n_undecoded``). Decoded signs are
+Each merged region goes to ``frontend.decoder.decode_region``; a region many
+windows agree on that the decoder refuses for its crop (the rim cut, the
+parts inconsistent, no location rectangle) is tried again with a tighter and
+a wider crop (``retry_margins``: the decoder's verdict depends on how much
+background the crop holds, most for signs near the 24 px window); regions that
+still do not decode are dropped and counted (``n_undecoded``). Decoded signs are
 ``frontend.observations.SignObservation``; ``Detector`` is the protocol the
 pipeline calls (``SignDetector`` here, a replay of known answers in tests).
 """
@@ -44,7 +48,13 @@ from typing import NamedTuple, Protocol
 
 import cv2
 import numpy as np
-from signpose.frontend.decoder import DecodeResult, _translated, decode_region
+from signpose.frontend.decoder import (
+    DecodeReason,
+    DecodeResult,
+    DecoderSettings,
+    _translated,
+    decode_region,
+)
 from signpose.frontend.observations import DEFAULT_SIGMA_PX, FrameObservations, SignObservation
 from signpose.frontend.verify import VerifyOutcome, verify_sign
 
@@ -52,6 +62,10 @@ from signpose.core.errors import InputError
 
 WINDOW_PX = 24
 MAX_REASON_CHARS = 200  # of OpenCV's message, in an error naming a bad cascade file
+# Refusals that are about the sign, not the crop: another crop of a region the
+# decoder found occluded (or read as a code the map lacks) would only be a
+# second guess at the same verdict (the decoder itself stops there too).
+NOT_RETRIED = frozenset({DecodeReason.OCCLUDED, DecodeReason.CODE_NOT_IN_MAP})
 
 
 class DetectorMode(enum.StrEnum):
@@ -185,6 +199,16 @@ class DetectorSettings:
         track_min_found_frac: tracking searches the full frame when it finds
             fewer than this fraction of the predicted signs (with ``refresh``:
             when it misses any).
+        retry_margins: a refused region is decoded again with these crop
+            margins (``DecoderSettings.region_margin``, fractions of the box
+            per side), in turn until one reads; () disables. A tight crop
+            drops the background that joins a small sign's disc, a wide one
+            holds a rim the box cut (scripts/eval_detector.py --frames 60:
+            recall 88.9 -> 91.8 %, 0 wrong; photo flights +12 signs of 480).
+        retry_min_windows: only regions at least this many cascade windows
+            agree on are retried (every region that read on a retry in the
+            evaluation had >= 20 in 9 of 10 cases; the weak regions of
+            photographs' textures do not pay for two more decodes each).
         decode: run the decoder (False: return raw merged regions, for tests).
     """
 
@@ -211,6 +235,8 @@ class DetectorSettings:
     track_scale: tuple[float, float] = (0.8, 1.4)
     track_scale_factor: float = 1.12
     track_min_found_frac: float = 0.5
+    retry_margins: tuple[float, ...] = (0.05, 0.5)
+    retry_min_windows: int = 20
     decode: bool = True
 
 
@@ -424,6 +450,9 @@ class SignDetector:
             ) from None
         if self._cascade.empty():
             raise InputError(f"{path}: not an OpenCV cascade classifier XML")
+        self._retry_settings = tuple(
+            DecoderSettings(region_margin=m) for m in self.settings.retry_margins
+        )
         w, h = self._cascade.getOriginalWindowSize()
         if w != h:  # signs are discs: a cascade of w x h windows was trained on something else
             raise InputError(
@@ -687,12 +716,50 @@ class SignDetector:
         undecoded = 0
         for (x, y, w, h), n in zip(regions, counts, strict=True):
             box = (float(x), float(y), float(w), float(h))
-            res = decode_region(gray, box, codes)
+            res = self._decode_box(gray, box, n, codes)
             if res.code is None:
                 undecoded += 1
                 continue
             found.append(_observation(res, box, n))
         return one_per_sign(found), undecoded
+
+    def decode_box(
+        self,
+        gray: np.ndarray,
+        box: tuple[float, float, float, float],
+        n_windows: float,
+        codes: Iterable[str] | None = None,
+    ) -> DecodeResult:
+        """The decoder's reading of one merged region, with the crop retries.
+
+        Args:
+            gray: (H, W) uint8 image.
+            box: (x, y, w, h) region [px].
+            n_windows: cascade windows merged into it (``retry_min_windows``).
+            codes: the map's codes; None = all 16.
+
+        Returns:
+            The first reading (default crop, then ``retry_margins`` in turn);
+            when none reads, the default crop's refusal.
+        """
+        codes = tuple(codes) if codes is not None else None
+        return self._decode_box(_as_gray(gray), box, n_windows, codes)
+
+    def _decode_box(
+        self,
+        gray: np.ndarray,
+        box: tuple[float, float, float, float],
+        n_windows: float,
+        codes: tuple[str, ...] | None,
+    ) -> DecodeResult:
+        res = decode_region(gray, box, codes)
+        if res.ok or res.reason in NOT_RETRIED or n_windows < self.settings.retry_min_windows:
+            return res
+        for settings in self._retry_settings:
+            again = decode_region(gray, box, codes, settings)
+            if again.ok:
+                return again
+        return res
 
     # -- public ------------------------------------------------------------------
 

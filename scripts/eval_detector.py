@@ -22,6 +22,22 @@ gets the photograph its seed picks) and prints, for the default detector
 signs >= 18 px, precision and T/D (``--json``: the same under
 ``backgrounds``).
 
+Every sign the default detector (group merge) misses is given one cause, per
+condition (flight or background; occluded or clear) and size bin
+(``--json``: under ``causes``):
+
+    no_candidate  fast mode: no candidate region holds its centre
+    no_region     no merged region centred within half a diameter
+    refused_crop  the region's crop refused (after the detector's retries)
+                  although the true box reads (with the same retries):
+                  its crop off-centre (> 0.25 d), too tight (< 0.8 d) or
+                  too loose (> 1.5 d) when it is
+    refused_sign  the region's crop refused and the true box too (the
+                  decoder's own limit: occlusion, blur, view)
+    read_other    the region reads, but not as this sign where it is
+
+and the decoder's reasons for the refused regions are counted.
+
     .venv/bin/python scripts/eval_detector.py [--quick] [--photo-flights 8] [--json PATH]
 """
 
@@ -29,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 import time
@@ -37,6 +54,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from signpose.frontend.decoder import decode_region
 from signpose.frontend.detector import DetectorSettings, SignDetector
 from signpose.maps.loader import bundled_map_path, load_map
 
@@ -77,10 +95,122 @@ def _empty() -> dict:
     return {"N": 0, "D": 0, "S": 0, "T": 0, "F": 0}
 
 
+CAUSES = ("no_candidate", "no_region", "refused_crop", "refused_sign", "read_other")
+# A region's crop is off-centre / too tight / too loose beyond these [diameters].
+OFF_CENTRE = 0.25
+TIGHT, LOOSE = 0.8, 1.5
+
+
+def _found(detections, s: dict) -> bool:
+    return any(
+        d.code == s["code"]
+        and np.hypot(*np.subtract(d.center_px, s["center_px"])) <= 0.5 * s["diameter_px"]
+        for d in detections
+    )
+
+
+def miss_cause(
+    gray: np.ndarray,
+    s: dict,
+    detector: SignDetector,
+    regions: np.ndarray,
+    counts: np.ndarray,
+    codes,
+    rois: list | None,
+) -> tuple[str, str, str]:
+    """(cause, crop geometry, decoder reason) of a missed sign (see the module docstring).
+
+    Args:
+        s: the sign's truth (boxes.jsonl).
+        regions, counts: the frame's merged regions (N, 4) and window counts.
+        rois: fast mode's candidate regions, or None (paper mode).
+    """
+    d = s["diameter_px"]
+    c = np.asarray(s["center_px"], float)
+    dist = np.hypot(*(regions[:, :2] + regions[:, 2:] / 2 - c).T) if len(regions) else np.inf
+    if not len(regions) or np.min(dist) > 0.5 * d:
+        inside = rois is not None and any(
+            x <= c[0] < x + w and y <= c[1] < y + h for x, y, w, h, _ in rois
+        )
+        return ("no_candidate" if rois is not None and not inside else "no_region"), "", ""
+    k = int(np.argmin(dist))
+    size = max(regions[k, 2:]) / d
+    geometry = (
+        "off_centre"
+        if dist[k] > OFF_CENTRE * d
+        else "too_tight"
+        if size < TIGHT
+        else "too_loose"
+        if size > LOOSE
+        else "fits"
+    )
+    res = detector.decode_box(gray, tuple(regions[k]), counts[k], codes)
+    if res.ok:
+        return "read_other", geometry, "ok"
+    # The true box with the same retries: what a perfect cascade would hand over.
+    true_reads = detector.decode_box(gray, s["bbox_px"], math.inf, codes).code == s["code"]
+    return ("refused_crop" if true_reads else "refused_sign"), geometry, str(res.reason)
+
+
+def _empty_causes() -> dict:
+    return {"N": 0, "T": 0, **dict.fromkeys(CAUSES, 0), "geometry": {}, "reasons": {}}
+
+
+def tally_causes(
+    gray, truth: dict, res, detector: SignDetector, raw, codes, mode: str, condition: str, out
+) -> None:
+    """Count, per condition and size bin, the signs found and each miss's cause."""
+    regions, counts = detector.merge(raw)
+    rois = None
+    for s in truth["signs"]:
+        b = _bin(s["diameter_px"])
+        if s["truncated"] or b is None:
+            continue
+        key = f"{condition}, {'occluded' if s['occluded'] else 'clear'}"
+        row = out.setdefault(key, {}).setdefault(b, _empty_causes())
+        row["N"] += 1
+        if _found(res.detections, s):
+            row["T"] += 1
+            continue
+        if rois is None and mode == "fast":
+            rois = detector.candidate_rois(gray)
+        cause, geometry, reason = miss_cause(gray, s, detector, regions, counts, codes, rois)
+        row[cause] += 1
+        if geometry:
+            row["geometry"][geometry] = row["geometry"].get(geometry, 0) + 1
+        if reason:
+            row["reasons"][reason] = row["reasons"].get(reason, 0) + 1
+
+
+def _print_causes(title: str, causes: dict) -> None:
+    print(f"\nmisses by cause, {title} (merge group), per condition and size:")
+    print(
+        f"{'condition':>34} {'size px':>7} {'N':>5} {'found':>5} {'recall':>8} "
+        + " ".join(f"{c:>12}" for c in CAUSES)
+    )
+    for cond, by_bin in sorted(causes.items()):
+        total = _empty_causes()
+        for b, row in [
+            *sorted(by_bin.items(), key=lambda kv: int(kv[0].split("-")[0])),
+            ("all", total),
+        ]:
+            if b != "all":
+                for k in ("N", "T", *CAUSES):
+                    total[k] += row[k]
+                for k in ("geometry", "reasons"):
+                    for name, n in row[k].items():
+                        total[k][name] = total[k].get(name, 0) + n
+            recall = 100 * row["T"] / row["N"] if row["N"] else float("nan")
+            print(
+                f"{cond:>34} {b:>7} {row['N']:5d} {row['T']:5d} {recall:7.2f}% "
+                + " ".join(f"{row[c]:12d}" for c in CAUSES)
+            )
+        print(f"{'':>34} refused regions' crops: {dict(sorted(total['geometry'].items()))}")
+        print(f"{'':>34} decoder reasons: {dict(sorted(total['reasons'].items()))}")
+
+
 def decodable(gray: np.ndarray, truth: dict) -> set[str]:
     """Codes the decoder reads from the true boxes (the ceiling for any detector)."""
-    from signpose.frontend.decoder import decode_region
-
     return {
         s["code"]
         for s in truth["signs"]
@@ -119,13 +249,15 @@ def _background_tables(
     flights: int,
     frames: int,
     seed: int,
-) -> dict:
-    """background -> mode -> summarized table, over flights with photographs behind.
+) -> tuple[dict, dict]:
+    """(background -> mode -> summarized table, mode -> miss causes) over flights
+    with photographs behind.
 
     Two flights of the same kind with the procedural background come first,
     as the reference.
     """
     tables: dict[str, dict[str, dict]] = {}
+    causes: dict[str, dict] = {}
     for k in range(flights + REFERENCE_FLIGHTS):
         out = root / f"photo{k}"
         settings = SimSettings(
@@ -144,13 +276,26 @@ def _background_tables(
                 tab = tables.setdefault(background, {}).setdefault(
                     mode, {f"{lo}-{hi}": _empty() for lo, hi in BINS}
                 )
-                res = detector.detect(gray, sign_map.codes, mode=mode)
+                raw = detector.raw_windows(gray, mode)
+                res = detector._finish(gray, raw, sign_map.codes, mode, {}, time.perf_counter())
                 score(res.detections, truth, tab, readable)
+                tally_causes(
+                    gray,
+                    truth,
+                    res,
+                    detector,
+                    raw,
+                    sign_map.codes,
+                    mode,
+                    background,
+                    causes.setdefault(mode, {}),
+                )
         print(f"background flight {k}: seed {seed + 100 + k}, {frames} frames", file=sys.stderr)
-    return {
+    summaries = {
         bg: {mode: summarize(tab) for mode, tab in by_mode.items()}
         for bg, by_mode in sorted(tables.items())
     }
+    return summaries, causes
 
 
 def _print_backgrounds(backgrounds: dict) -> None:
@@ -217,10 +362,12 @@ def main(argv: list[str] | None = None) -> int:
     extra = {k: {"regions": 0, "undecoded": 0} for k in tables}
     n_frames = 0
     backgrounds: dict = {}
+    causes: dict[str, dict] = {mode: {} for mode in modes}
+    photo_causes: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         if args.photo_flights:
-            backgrounds = _background_tables(
+            backgrounds, photo_causes = _background_tables(
                 root,
                 sign_map,
                 detectors["group"],
@@ -251,6 +398,18 @@ def main(argv: list[str] | None = None) -> int:
                         score(res.detections, truth, tab, readable)
                         extra[(mode, merge)]["regions"] += res.n_regions
                         extra[(mode, merge)]["undecoded"] += res.n_undecoded
+                        if merge == "group":
+                            tally_causes(
+                                gray,
+                                truth,
+                                res,
+                                det,
+                                raw,
+                                sign_map.codes,
+                                mode,
+                                f"{traj} at {dist:g} m",
+                                causes[mode],
+                            )
             print(
                 f"flight {k}: {traj} at {dist:g} m, {n} frames, seed {args.seed + k}",
                 file=sys.stderr,
@@ -281,11 +440,16 @@ def main(argv: list[str] | None = None) -> int:
                 f"{100 * r['true_recall']:6.2f}% {r['D']:6d} "
                 f"{100 * r['recall_of_decodable']:6.2f}%"
             )
+    for mode in modes if n_frames else ():
+        _print_causes(f"held-out flights, mode {mode}", causes[mode])
     if backgrounds:
         _print_backgrounds(backgrounds)
+        for mode, by_condition in photo_causes.items():
+            _print_causes(f"photo flights, mode {mode}", by_condition)
     if args.json:
         data = {"frames": n_frames, "seed": args.seed, "results": results}
         data["backgrounds"] = backgrounds
+        data["causes"] = {"held_out": causes, "photo": photo_causes}
         with atomic_write(args.json) as f:
             json.dump(data, f, indent=1)
     return 0

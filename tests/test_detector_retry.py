@@ -1,0 +1,141 @@
+"""Crop retries on regions the decoder refuses (issue 11 item 6); eval_detector's miss causes."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from signpose.frontend import detector as detector_module
+from signpose.frontend.decoder import DecodeReason, DecodeResult, decode_region
+from signpose.frontend.detector import DetectorSettings, SignDetector
+from signpose.frontend.sign import render_sign_png
+from signpose.maps.loader import bundled_map_path, load_map
+
+from signpose.io.boxes import read_boxes
+from signpose.sim.flight import SimSettings, simulate
+
+DIAMETER_PX = 40
+CUT_BOX_FRAC = 0.6  # a region this fraction of the disc: the default crop cuts its rim
+
+
+def _sign_frame(code: str = "0101") -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """(200, 200) frame with one sign of DIAMETER_PX at its middle, and a box cutting its rim."""
+    frame = np.full((200, 200), 150, np.uint8)
+    face = render_sign_png(code, DIAMETER_PX).astype(float)
+    yy, xx = np.mgrid[:DIAMETER_PX, :DIAMETER_PX]
+    disc = np.hypot(xx - (DIAMETER_PX - 1) / 2, yy - (DIAMETER_PX - 1) / 2) <= DIAMETER_PX / 2
+    x0 = 100 - DIAMETER_PX // 2
+    patch = frame[x0 : x0 + DIAMETER_PX, x0 : x0 + DIAMETER_PX]
+    frame[x0 : x0 + DIAMETER_PX, x0 : x0 + DIAMETER_PX] = np.where(
+        disc, np.round(20 + face * (230 - 20) / 255), patch
+    )
+    side = CUT_BOX_FRAC * DIAMETER_PX
+    return frame, (100 - side / 2, 100 - side / 2, side, side)
+
+
+def test_a_region_whose_crop_cuts_the_rim_is_read_with_a_wider_crop():
+    frame, box = _sign_frame()
+    assert decode_region(frame, box).reason == DecodeReason.CUT_BY_EDGE  # the default crop
+    det = SignDetector()
+    res = det.decode_box(frame, box, n_windows=40)
+    assert res.code == "0101"
+    assert math.dist(res.keypoints_px["center"], (99.5, 99.5)) < 1.0
+    # Without retries, or for a region few windows agree on, it stays refused.
+    plain = SignDetector(settings=DetectorSettings(retry_margins=()))
+    assert plain.decode_box(frame, box, n_windows=40).reason == DecodeReason.CUT_BY_EDGE
+    weak = DetectorSettings().retry_min_windows - 1
+    assert det.decode_box(frame, box, n_windows=weak).reason == DecodeReason.CUT_BY_EDGE
+    # The region goes through the same path when a frame is decoded.
+    dets, undecoded = det._decode(frame, np.array([box]), np.array([40]), None)
+    assert [d.code for d in dets] == ["0101"] and undecoded == 0
+    assert plain._decode(frame, np.array([box]), np.array([40]), None) == ((), 1)
+
+
+@pytest.mark.parametrize("reason", [DecodeReason.OCCLUDED, DecodeReason.CODE_NOT_IN_MAP])
+def test_a_refusal_about_the_sign_is_not_tried_again(monkeypatch, reason):
+    """Occluded or a code the map lacks: another crop would be a second guess at the verdict."""
+    calls = []
+
+    def refusing(gray, box, codes=None, settings=None):
+        calls.append(settings)
+        return DecodeResult(code=None, reason=reason)
+
+    monkeypatch.setattr(detector_module, "decode_region", refusing)
+    frame, box = _sign_frame()
+    res = SignDetector().decode_box(frame, box, n_windows=100)
+    assert res.reason == reason and len(calls) == 1
+    # A refusal about the crop is tried with every retry margin.
+    calls.clear()
+    monkeypatch.setattr(
+        detector_module,
+        "decode_region",
+        lambda gray, box, codes=None, settings=None: (
+            calls.append(settings) or DecodeResult(code=None, reason=DecodeReason.NO_LOCATION)
+        ),
+    )
+    SignDetector().decode_box(frame, box, n_windows=100)
+    assert [s.region_margin for s in calls[1:]] == list(DetectorSettings().retry_margins)
+
+
+@pytest.fixture(scope="module")
+def far_frame(tmp_path_factory):
+    """A frame of the orbit at 62 m (signs about 21 px, one of them partly hidden) and its truth."""
+    out = tmp_path_factory.mktemp("orbit")
+    sign_map = load_map(bundled_map_path())
+    settings = SimSettings(frames=2, trajectory="orbit", distance_m=62.0, seed=78, format="png")
+    simulate(sign_map, out, settings, progress=False)
+    gray = cv2.imread(str(out / "frames" / "000001.png"), cv2.IMREAD_GRAYSCALE)
+    return gray, read_boxes(out / "boxes.jsonl")[1], sign_map
+
+
+def test_on_a_far_frame_the_retries_find_a_small_sign_and_nothing_false(far_frame):
+    gray, truth, sign_map = far_frame
+    before = SignDetector(settings=DetectorSettings(retry_margins=())).detect(gray, sign_map.codes)
+    after = SignDetector().detect(gray, sign_map.codes)
+    assert {d.code for d in before.detections} < {d.code for d in after.detections}
+    assert after.n_undecoded < before.n_undecoded
+    by_code = {s["code"]: s for s in truth["signs"]}
+    for d in after.detections:  # every reading is a sign of the frame, where it is
+        s = by_code[d.code]
+        assert math.dist(d.center_px, s["center_px"]) < 0.25 * s["diameter_px"]
+        assert s["diameter_px"] < 30
+
+
+def _eval_detector():
+    path = Path(__file__).resolve().parents[1] / "scripts" / "eval_detector.py"
+    spec = importlib.util.spec_from_file_location("eval_detector", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["eval_detector"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_eval_detector_names_the_cause_of_each_miss():
+    ev = _eval_detector()
+    frame, cut_box = _sign_frame()
+    side = float(DIAMETER_PX)
+    true_box = (100 - side / 2, 100 - side / 2, side, side)
+    sign = {"code": "0101", "center_px": [99.5, 99.5], "diameter_px": side, "bbox_px": true_box}
+    plain = SignDetector(settings=DetectorSettings(retry_margins=()))
+    far = np.array([[0.0, 0.0, 30.0, 30.0]])
+    counts = np.array([40])
+    # No region near it; in fast mode also no candidate region holding its centre.
+    assert ev.miss_cause(frame, sign, plain, far, counts, None, None)[0] == "no_region"
+    assert ev.miss_cause(frame, sign, plain, far, counts, None, [])[0] == "no_candidate"
+    # A region whose crop is refused while the true box reads: the crop's fault, and
+    # the crop is too tight.
+    cause, geometry, reason = ev.miss_cause(
+        frame, sign, plain, np.array([cut_box]), counts, None, None
+    )
+    assert (cause, geometry, reason) == ("refused_crop", "too_tight", "cut_by_edge")
+    # The sign hidden (its face grey): the true box is refused too.
+    blank = frame.copy()
+    blank[85:115, 85:115] = 60
+    assert ev.miss_cause(blank, sign, plain, np.array([true_box]), counts, None, None)[0] == (
+        "refused_sign"
+    )
