@@ -29,9 +29,12 @@ drawing code with the simulator): median CPU of a full decode
 at the predicted homography, moved by the frame's median prediction offset
 as ``detect_tracked`` moves it; on the independent crops the true homography
 shifted by 0.5 px). Found signs, wrong codes (a code at no true sign of that
-code) and verification outcomes are counted per mode.
+code) and verification outcomes are counted per mode. ``--check-verify``
+also runs the slow reference verification of tests/test_verify_fast.py on
+every timed crop and counts those whose outcome or reading differs.
 
     .venv/bin/python scripts/bench_frontend.py [--quick] [--frames N] [--repeat R] [--json PATH]
+        [--check-verify]
 """
 
 from __future__ import annotations
@@ -175,8 +178,12 @@ def _frame_modes(det, aruco, scene, sign_map, repeat):
     return per_frame, passes, tallies, outcomes
 
 
-def _crop_times(scene, codes) -> dict:
-    """Median CPU [ms] per crop: full decode on the true box, verification at the prediction."""
+def _crop_times(scene, codes, check=None) -> dict:
+    """Median CPU [ms] per crop: full decode on the true box, verification at the prediction.
+
+    ``check``: ``_reference_check()``, to count the verifications whose outcome
+    or reading differs from the reference's (``check_differ``).
+    """
     full, ver = [], []
     outcomes = collections.Counter()
     for i, f in enumerate(scene["frames"]):
@@ -197,10 +204,24 @@ def _crop_times(scene, codes) -> dict:
             ms, v = _cpu_ms(lambda p=p, f=f, h=h: verify_sign(f, h, p.code, codes))
             ver.append(ms)
             outcomes[v.outcome.value] += 1
+            if check is not None:
+                reference, differences = check
+                outcomes["check_differ"] += bool(differences(v, reference(f, h, p.code, codes)))
     return {"full_decode_ms": _med(full), "verify_ms": _med(ver), "crops": len(full), **outcomes}
 
 
-def _scene_crop_times(n: int) -> dict:
+def _reference_check():
+    """(reference verify_sign, field differences) of tests/test_verify_fast.py: the
+    verification as it was before it was made cheaper, from the decoder's pieces."""
+    path = Path(__file__).resolve().parents[1] / "tests" / "test_verify_fast.py"
+    spec = importlib.util.spec_from_file_location("test_verify_fast", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["test_verify_fast"] = mod
+    spec.loader.exec_module(mod)
+    return mod._reference_verify_sign, mod._differences
+
+
+def _scene_crop_times(n: int, check=None) -> dict:
     """The same on crops of scripts/independent_scene.py (mixed conditions)."""
     spec = importlib.util.spec_from_file_location(
         "independent_scene", Path(__file__).with_name("independent_scene.py")
@@ -227,6 +248,8 @@ def _scene_crop_times(n: int) -> dict:
         ms, v = _cpu_ms(lambda im=crop.image, h=h, c=code: verify_sign(im, h, c))
         ver.append(ms)
         outcomes[v.outcome.value] += 1
+        if check is not None:
+            outcomes["check_differ"] += bool(check[1](v, check[0](crop.image, h, code)))
     return {"full_decode_ms": _med(full), "verify_ms": _med(ver), "crops": n, **outcomes}
 
 
@@ -277,6 +300,8 @@ def _print_scene(name: str, res: dict, n: int) -> None:
         f" verification {c['verify_ms']:.3f} ms"
         f" ({c['verify_ms'] / c['full_decode_ms']:.2f}x)"
     )
+    if "check_differ" in c:
+        print(f"  verifications differing from the reference: {c['check_differ']} of {c['crops']}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -287,7 +312,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenes", default="sim,hard", help="flights: sim, hard")
     ap.add_argument("--cascade", type=Path, default=None, help="cascade XML (default: bundled)")
     ap.add_argument("--json", type=Path, default=None, help="write the results here")
+    ap.add_argument(
+        "--check-verify",
+        action="store_true",
+        help="also run the reference verification of tests/test_verify_fast.py on every"
+        " timed crop and count the outcomes or readings that differ (check_differ)",
+    )
     args = ap.parse_args(argv)
+    check = _reference_check() if args.check_verify else None
     cv2.setNumThreads(1)
     n = args.frames or (8 if args.quick else 30)
     sign_map = load_map(bundled_map_path())
@@ -306,14 +338,14 @@ def main(argv: list[str] | None = None) -> int:
             "modes": _ratios(per_frame, passes),
             "found": {m: dict(t) for m, t in tallies.items()},
             "verifications": dict(outcomes),
-            "crops": _crop_times(scene, codes),
+            "crops": _crop_times(scene, codes, check),
         }
         for t in res["found"].values():
             for k in ("found", "found_ge18", "wrong", "full_frames", "signs"):
                 t.setdefault(k, 0)
         results["scenes"][name] = res
         _print_scene(name, res, n)
-    sc = _scene_crop_times(SCENE_CROPS if not args.quick else 20)
+    sc = _scene_crop_times(SCENE_CROPS if not args.quick else 20, check)
     results["independent_crops"] = sc
     print(
         f"independent_scene crops ({sc['crops']}, mixed): full decode {sc['full_decode_ms']:.3f}"
