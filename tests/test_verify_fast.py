@@ -114,7 +114,15 @@ def _reference_verify_sign(image, image_H_sign, code, codes=None):
     if reading.code is None or reading.code != code:
         return miss(VerifyOutcome.SLOT_DIFFERS, reading.reason)
     region = dec._Region(
-        g, [], np.zeros((0, 2)), dec._LazyFlag(lambda: False), None, None, None, allowed, ds
+        gray=g,
+        holes=[],
+        centroids_px=np.zeros((0, 2)),
+        cut=dec._LazyFlag(lambda: False),
+        rim_contour=None,
+        disc_area_px=None,
+        disc_centre_px=None,
+        allowed=allowed,
+        settings=ds,
     )
     accepted, occ, reason = dec._accept_code(region, h_ref, reading, major)
     if accepted != code or occ is None or occ.covered_parts or "x" in occ.pattern:
