@@ -81,11 +81,12 @@ from signpose.frontend.homography import (
 # The sigma model lives in its own module; these names stay importable from here.
 from signpose.frontend.keypoint_noise import (  # noqa: F401
     SIGMA_MODEL,
+    PartMeasures,
     SigmaInputs,
     SigmaModel,
     keypoint_sigmas,
     mean_sigma,
-    part_residuals_px,
+    measure_parts,
 )
 from signpose.frontend.sign import (
     ALL_CODES,
@@ -1485,11 +1486,14 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
         bool(occ.covered_parts),
         max(occ.disturbance, refined.fill_deficit),
         erased,
-        part_residuals_px(
+        measure_parts(
+            g,
             refined.image_H_sign,
             [_PART_NAMES[p] for p in refined.used_parts],
             _PART_QUADS[refined.used_parts],
             refined.centroids_px,
+            reading.black,
+            reading.white,
         ),
     )
 
@@ -1505,12 +1509,12 @@ def _reading_result(
     crossed: bool,
     disturbance: float,
     erased: tuple[int, ...],
-    part_residual_px: dict[str, tuple[float, float]] | None = None,
+    measured: PartMeasures | None = None,
 ) -> DecodeResult:
     """An accepted reading as a ``DecodeResult``: quality from the reading's
     margin and the fit's residual ``rms`` [px], keypoints ``uv`` of ``parts``
-    with their sigmas (``keypoint_sigmas``; ``part_residual_px``: each part's
-    own residual, ``keypoint_noise.part_residuals_px``)."""
+    with their sigmas (``keypoint_sigmas``; ``measured``: what the image shows
+    around each part, ``keypoint_noise.measure_parts``)."""
     quality = min(max(reading.margin / 0.5, 0.0), 1.0) * math.exp(
         -(rms if math.isfinite(rms) else 0.0) / 0.5
     )
@@ -1521,8 +1525,15 @@ def _reading_result(
         residual_px=rms,
         crossed=crossed,
         disturbance=disturbance,
-        part_residual_px=part_residual_px or {},
     )
+    if measured is not None:
+        inputs = replace(
+            inputs,
+            part_residual_px=measured.residual_px,
+            part_stray=measured.stray,
+            part_inside=measured.inside,
+            noise=measured.noise,
+        )
     sigmas = keypoint_sigmas(inputs, names)
     return DecodeResult(
         code=code,

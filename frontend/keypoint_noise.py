@@ -9,14 +9,24 @@ Each keypoint kind (the centre, the directional rectangle, a coded slot) has
 its own ``KindNoise``; the variance is a sum of terms, each a constant times
 the square of one thing the decoder measured (``variance_terms``):
 
-    sigma_a^2 = floor^2 + (size / minor)^2 + (spread_px * spread)^2
-              + (residual * rms)^2 + (disturbance * disturbance_in * minor)^2
-              + (own_residual * own_a)^2 + crossed_px^2 [a line crosses the face]
+    sigma_a^2 = floor^2 + (size / minor)^2 + (noise_px * noise)^2
+              + (spread_px * [spread - 3 noise]+)^2 + (residual * rms)^2
+              + (disturbance * [disturbance_in - 5 noise]+ * minor)^2
+              + (stray * [stray_k - 5 noise]+ * minor)^2
+              + (inside * [1 - inside_k - 5 noise]+ * minor)^2
+              + (own_residual * own_k,a)^2 + crossed_px^2 [a line crosses the face]
 
-with ``a`` the image axis (u or v): ``own_a`` is this keypoint's own part's
-centroid minus the homography's prediction of it along that axis (only when
-more than four parts over-determine the fit), so a part pulled by a line or
-dirt makes its own keypoint's sigma larger, and larger along the pull.
+``a`` is the image axis (u or v) and ``k`` the keypoint's own part:
+``own_k,a`` is its measured centroid minus the homography's prediction along
+that axis (only when more than four parts over-determine the fit), so a part
+pulled by a line or dirt makes its own keypoint's sigma larger along the
+pull; ``stray_k`` is the white just outside its centroid window (glare, blur
+beyond it) and ``inside_k`` the least white inside it (a line across it). The
+image noise (``noise``, the black's high-pass noise over the contrast) is
+taken off the spread, the disturbance, the stray white and the inside
+deficit first ([x]+ = max(x, 0)): a minimum over noisy samples falls short
+of white by a few noise sigmas on a clean sign, and renderers and cameras
+differ in their noise while the centroids barely feel it.
 """
 
 from __future__ import annotations
@@ -25,7 +35,9 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
+from signpose.frontend import occlusion
 from signpose.frontend.homography import polygon_centroids
 
 # The names of the variance terms, in the order of ``variance_terms``' columns
@@ -38,7 +50,13 @@ TERMS: tuple[str, ...] = (
     "disturbance",
     "own_residual",
     "crossed_px",
+    "noise_px",
+    "stray",
+    "inside",
 )
+# Multiples of the noise taken off the spread and off the other shortfalls.
+_SPREAD_NOISE = 3.0
+_SHORTFALL_NOISE = 5.0
 
 
 @dataclass(frozen=True)
@@ -48,12 +66,16 @@ class KindNoise:
     Attributes:
         floor_px: error left on large clean signs [px].
         size_px2: size term [px^2], over the disc's minor axis [px].
-        spread_px: error per unit of the black samples' spread [px].
+        spread_px: error per unit of the black samples' spread beyond the noise [px].
         residual: factor on the homography fit's RMS residual.
         disturbance: error as a fraction of the disc's minor axis per unit
-            of ``SigmaInputs.disturbance``.
+            of ``SigmaInputs.disturbance`` beyond the noise.
         own_residual: factor on the keypoint's own part's residual, per axis.
         crossed_px: error added when a thin line crosses the face [px].
+        noise_px: error per unit of the image noise (over the contrast) [px].
+        stray: error as a fraction of the minor axis per unit of stray white
+            beyond the noise outside the keypoint's own part.
+        inside: the same per unit of the part's inside shortfall of white.
     """
 
     floor_px: float
@@ -63,6 +85,9 @@ class KindNoise:
     disturbance: float = 0.0
     own_residual: float = 0.0
     crossed_px: float = 0.0
+    noise_px: float = 0.0
+    stray: float = 0.0
+    inside: float = 0.0
 
     def coefficients(self) -> np.ndarray:
         """(len(TERMS),) the constants, in ``TERMS`` order."""
@@ -94,37 +119,44 @@ def kind_of(name: str) -> str:
 
 # Calibrated by `.venv/bin/python scripts/calibrate_sigma.py --n 150 --seed 11`
 # against the simulator's truth (signpose.sim.crops, 12 conditions), the
-# constants as it prints them. Terms the fit drove to ~0 stay in the model (a
-# later calibration may need them): the centre's and directional keypoint's
-# residual and own residual, the size terms, and crossed_px but for the
-# directional keypoint (a closed-away line distorts its thin rectangle).
+# constants as it prints them (rounded to 3 digits). Terms the fit drove to
+# ~0 stay in the model, a later calibration may need them.
 SIGMA_MODEL = SigmaModel(
     center=KindNoise(
-        floor_px=0.00934,
-        size_px2=0.00241,
-        spread_px=2.82,
-        residual=0.00139,
-        disturbance=0.00848,
-        own_residual=0.275,
-        crossed_px=2.06e-09,
+        floor_px=0.0251,
+        size_px2=1.3e-06,
+        spread_px=4.29,
+        residual=0.000447,
+        disturbance=0.0121,
+        own_residual=0.422,
+        crossed_px=8.39e-08,
+        noise_px=0.00217,
+        stray=0.0181,
+        inside=0.0107,
     ),
     direction=KindNoise(
-        floor_px=0.00633,
-        size_px2=0.00248,
-        spread_px=0.00249,
-        residual=0.00248,
-        disturbance=0.0402,
-        own_residual=0.00248,
-        crossed_px=0.134,
+        floor_px=0.0269,
+        size_px2=0.436,
+        spread_px=1.95,
+        residual=0.304,
+        disturbance=0.028,
+        own_residual=0.0166,
+        crossed_px=0.378,
+        noise_px=0.0936,
+        stray=0.0439,
+        inside=0.0223,
     ),
     slot=KindNoise(
-        floor_px=0.0188,
-        size_px2=0.000395,
-        spread_px=1.55,
-        residual=0.371,
-        disturbance=0.00841,
-        own_residual=0.98,
-        crossed_px=1.76e-05,
+        floor_px=0.0241,
+        size_px2=0.00989,
+        spread_px=2.59,
+        residual=0.00706,
+        disturbance=0.0121,
+        own_residual=0.287,
+        crossed_px=0.000508,
+        noise_px=0.042,
+        stray=0.0185,
+        inside=0.00815,
     ),
 )
 
@@ -145,6 +177,13 @@ class SigmaInputs:
         part_residual_px: part name -> (du, dv) [px], the part's measured
             centroid minus the fitted homography's prediction of it (only
             for fits of more than four parts; see ``part_residuals_px``).
+        part_stray: part name -> mean white fraction just outside the part's
+            centroid window (glare, blur or a bright line beyond it pull the
+            centroid; ``measure_parts``).
+        part_inside: part name -> the least white fraction inside the part
+            (a line or dirt across it).
+        noise: robust high-pass noise of the disc's black, as a fraction of
+            white - black (NaN: not measured).
     """
 
     minor_px: float
@@ -153,6 +192,9 @@ class SigmaInputs:
     crossed: bool
     disturbance: float = 0.0
     part_residual_px: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    part_stray: Mapping[str, float] = field(default_factory=dict)
+    part_inside: Mapping[str, float] = field(default_factory=dict)
+    noise: float = float("nan")
 
 
 def part_residuals_px(
@@ -182,6 +224,116 @@ def part_residuals_px(
     return {n: (float(du), float(dv)) for n, (du, dv) in zip(names, r, strict=True)}
 
 
+# Black sample rings [diameters]: between the location square's corners
+# (0.127) and the slots (0.168), and just inside the rim (0.5).
+_RING_ANGLES = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
+_BLACK_RINGS = [
+    r * np.stack([np.cos(_RING_ANGLES), np.sin(_RING_ANGLES)], axis=1) for r in (0.148, 0.46)
+]
+_EDGE_T = np.linspace(0.1, 0.9, 5)
+# Where the stray samples lie outside a part: beyond the decoder's centroid
+# window (1.5 px), at most this far in diameters (the gaps between parts).
+_STRAY_PX = 2.5
+_STRAY_MAX = 0.04
+
+
+@dataclass(frozen=True)
+class PartMeasures:
+    """Per-part measurements of one reading for ``SigmaInputs`` (see its attributes)."""
+
+    residual_px: dict[str, tuple[float, float]]
+    stray: dict[str, float]
+    inside: dict[str, float]
+    noise: float
+
+
+def _project(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    p = np.c_[np.asarray(xy, dtype=float).reshape(-1, 2), np.ones(len(xy))] @ h.T
+    return p[:, :2] / p[:, 2:]
+
+
+def _sample(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(N,) bilinear gray levels at (N, 2) pixels, NaN outside the image."""
+    h, w = gray.shape
+    u, v = uv[:, 0], uv[:, 1]
+    ok = (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
+    out = np.full(len(uv), np.nan)
+    if ok.any():
+        m = uv[ok].astype(np.float32).reshape(1, -1, 2)
+        g = cv2.remap(gray, m, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out[ok] = g.reshape(-1)
+    return out
+
+
+def _noise(gray: np.ndarray, image_H_sign: np.ndarray, contrast: float) -> float:
+    """Robust noise of the black rings over ``contrast``: second differences
+    along each ring cancel smooth shading (glare, vignetting)."""
+    d2 = []
+    for ring in _BLACK_RINGS:
+        g = _sample(gray, _project(image_H_sign, ring))
+        d = np.roll(g, 1) - 2 * g + np.roll(g, -1)
+        d2.append(d[np.isfinite(d)])
+    d = np.concatenate(d2)
+    if len(d) < 16:
+        return float("nan")
+    return float(1.4826 * np.median(np.abs(d)) / math.sqrt(6.0) / max(contrast, 1e-6))
+
+
+def _stray(gray, image_H_sign, quads, black, white) -> np.ndarray:
+    """(P,) mean white fraction on each part's outline grown by ``_STRAY_PX``."""
+    steps = _project(image_H_sign, np.array([[0.0, 0.0], [0.01, 0.0], [0.0, 0.01]]))
+    scale = math.sqrt(abs(np.linalg.det(steps[1:] - steps[0]))) / 0.01  # px per diameter
+    grow = min(_STRAY_PX / max(scale, 1e-9), _STRAY_MAX)
+    out = []
+    for q in quads:
+        c = q.mean(axis=0)
+        pts = []
+        for i in range(4):
+            a, b = q[i], q[(i + 1) % 4]
+            n = np.array([b[1] - a[1], a[0] - b[0]]) / max(float(np.hypot(*(b - a))), 1e-12)
+            if n @ ((a + b) / 2 - c) < 0:
+                n = -n
+            pts.append(a + np.outer(_EDGE_T, b - a) + grow * n)
+        frac = (_sample(gray, _project(image_H_sign, np.concatenate(pts))) - black) / max(
+            white - black, 1e-6
+        )
+        frac = frac[np.isfinite(frac)]
+        out.append(float(np.clip(frac, 0.0, 1.0).mean()) if len(frac) else 0.0)
+    return np.array(out)
+
+
+def measure_parts(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    names: list[str],
+    quads: np.ndarray,
+    centroids_px: np.ndarray,
+    black: float,
+    white: float,
+) -> PartMeasures:
+    """What the image shows around each measured part, for its keypoint's sigma.
+
+    Args:
+        gray: (H, W) the crop the centroids were measured in.
+        image_H_sign: (3, 3) the fitted homography [sign units -> px].
+        names: the parts' keypoint names.
+        quads: (P, 4, 2) the parts' corners in the sign plane.
+        centroids_px: (P, 2) their measured centroids [px].
+        black, white: the reading's gray levels.
+    """
+    h = np.asarray(image_H_sign, dtype=float)
+    quads = np.asarray(quads, dtype=float)
+    thin = np.array([n == "direction" for n in names], dtype=bool)
+    inside = occlusion.interior_min_white(gray, h, quads, black, white, thin)
+    stray = _stray(gray, h, quads, black, white)
+    return PartMeasures(
+        residual_px=part_residuals_px(h, names, quads, centroids_px),
+        stray={n: float(v) for n, v in zip(names, stray, strict=True)},
+        inside={n: float(v) for n, v in zip(names, inside, strict=True)},
+        noise=_noise(gray, h, white - black),
+    )
+
+
 def variance_terms(inputs: SigmaInputs, name: str) -> np.ndarray:
     """(2, len(TERMS)) the squared measured quantities of keypoint ``name``, per axis (u, v).
 
@@ -189,16 +341,27 @@ def variance_terms(inputs: SigmaInputs, name: str) -> np.ndarray:
     """
     minor = max(inputs.minor_px, 1.0)
     rms = inputs.residual_px if math.isfinite(inputs.residual_px) else 0.0
+    # Unmeasured noise (a reading built without ``measure_parts``) takes
+    # nothing off: the shortfalls count in full.
+    noise = inputs.noise if math.isfinite(inputs.noise) else 0.0
+    short = _SHORTFALL_NOISE * noise
     own = inputs.part_residual_px.get(name, (0.0, 0.0))
-    shared = [
+    stray = max(inputs.part_stray.get(name, 0.0) - short, 0.0)
+    inside = max(1.0 - inputs.part_inside.get(name, 1.0) - short, 0.0)
+    head = [
         1.0,
         1.0 / minor**2,
-        inputs.spread**2,
+        max(inputs.spread - _SPREAD_NOISE * noise, 0.0) ** 2,
         rms**2,
-        (inputs.disturbance * minor) ** 2,
+        (max(inputs.disturbance - short, 0.0) * minor) ** 2,
     ]
-    crossed = 1.0 if inputs.crossed else 0.0
-    return np.array([shared + [own[0] ** 2, crossed], shared + [own[1] ** 2, crossed]])
+    tail = [
+        1.0 if inputs.crossed else 0.0,
+        noise**2,
+        (stray * minor) ** 2,
+        (inside * minor) ** 2,
+    ]
+    return np.array([head + [own[0] ** 2] + tail, head + [own[1] ** 2] + tail])
 
 
 def keypoint_sigmas(

@@ -17,7 +17,9 @@ from signpose.frontend.sign import sign_shape
 from signpose.sim.crops import render_crop
 
 NAMES = ["center", "direction", "slot1"]
-CLEAN = SigmaInputs(minor_px=60.0, spread=0.01, residual_px=0.02, crossed=False, disturbance=0.03)
+CLEAN = SigmaInputs(
+    minor_px=60.0, spread=0.01, residual_px=0.02, crossed=False, disturbance=0.03, noise=0.005
+)
 
 
 def _sig(inputs: SigmaInputs) -> dict[str, tuple[float, float]]:
@@ -42,6 +44,35 @@ def test_sigma_grows_with_residual_disturbance_spread_and_a_crossing_line():
     _grows(replace(CLEAN, disturbance=0.4))
     _grows(replace(CLEAN, spread=0.15))
     _grows(replace(CLEAN, crossed=True))
+
+
+def test_sigma_grows_with_stray_white_and_a_line_across_the_own_part_only():
+    """Stray white (glare, blur beyond the window) or a line across a part
+    (an occluder over it, not elsewhere) grows that part's keypoint sigma."""
+    a = _sig(CLEAN)
+    for field in ("part_stray", "part_inside"):
+        value = 0.3 if field == "part_stray" else 0.6
+        b = _sig(replace(CLEAN, **{field: {"slot1": value}}))
+        assert b["slot1"][0] > 2.0 * a["slot1"][0], field
+        assert b["center"] == a["center"] and b["direction"] == a["direction"], field
+
+
+def test_noise_is_taken_off_the_shortfalls():
+    """A shortfall of white within a few noise sigmas is the noise, not a pull."""
+    dim = replace(CLEAN, part_inside={"slot1": 0.9}, noise=0.0)
+    noisy = replace(dim, noise=0.03)  # 5 noise sigmas cover the 0.1 shortfall
+    assert _sig(noisy)["slot1"][0] < _sig(dim)["slot1"][0]
+
+
+def test_blur_shows_as_stray_white_and_grows_the_sigmas():
+    rng = np.random.default_rng(8)
+    kw = {"sign_px": 60, "rotation_deg": 10, "tilt_deg": 15, "noise_sigma": 1.0}
+    sharp = decode_roi(render_crop("1010", rng, **kw).image)
+    blurred = decode_roi(render_crop("1010", rng, blur_px=6.0, **kw).image)
+    assert sharp.code == blurred.code == "1010"
+    for n in ("center", "slot1"):
+        assert blurred.sigma_inputs.part_stray[n] > sharp.sigma_inputs.part_stray[n] + 0.02
+    assert blurred.sigma_px > sharp.sigma_px
 
 
 def test_a_parts_own_residual_grows_its_own_sigma_along_its_axis():
