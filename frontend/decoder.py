@@ -1373,6 +1373,7 @@ def _occlusion(
     inside = _inside(_project(image_H_sign, _OUTER_RING), w, h, 0.0)
     pattern = list(reading.code)
     white = [0, 1] + [1 + k for k in range(1, N_BITS + 1) if pattern[k - 1] == "1"]
+    zeros = [1 + k for k in range(1, N_BITS + 1) if pattern[k - 1] == "0"]
     # The rim's dark runs, sampled once for both kinds of band (none wanted
     # when neither looks: no ring inside the crop and an intact outline).
     runs = []
@@ -1385,10 +1386,13 @@ def _occlusion(
         bands = [b for b in bands if b.in_front]
     else:
         # A black-read slot under a bar whose other end is lost in the dark.
-        zeros = [1 + k for k in range(1, N_BITS + 1) if pattern[k - 1] == "0"]
         bands += occlusion.bars_through(
             g, image_H_sign, reading.black, reading.white, _PART_CENTRES[zeros], runs
         )
+    # An object in front whose gray is not the print's black, over a black-read slot.
+    bands += occlusion.off_black_bands(
+        g, image_H_sign, reading.black, reading.white, _PART_CENTRES[zeros]
+    )
     inside_white = occlusion.interior_min_white(
         g, image_H_sign, _PART_QUADS[white], reading.black, reading.white, np.equal(white, 1)
     )

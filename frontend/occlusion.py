@@ -11,7 +11,13 @@ behind, given the sign's homography and its black and white gray levels:
 * white parts whose inside is not white throughout (a thin conductor, a
   bright bar over black is caught by the decoder's gray-level reading);
 * white inside the disc that no part of the read code explains (a reading
-  whose homography missed two white slots, or glare on the face).
+  whose homography missed two white slots, or glare on the face);
+* an object whose gray is not the print's black (``off_black_bands``): the
+  rim band just inside the rim is print black all round on a sign, so a bar
+  in front lighter or darker than the print shows there as two arcs, and
+  the chord between them shows the same level across the face, at least
+  ``_MIN_HIDING_WIDTH`` wide. This needs nothing dark beyond the rim: it
+  is the one test for a dark-gray member over a dark photograph.
 
 Plane coordinates are the decoder's: the sign plane in units of the disc
 diameter (x right, y up, origin at the centre, rim at radius 0.5).
@@ -539,3 +545,149 @@ def unexplained_white(
     pts = _unexplained_grid(tuple(sorted(known_parts)), int(math.ceil(grow / _GROW_STEP)))
     frac = (_sample(gray, _project(image_H_sign, pts)) - black) / max(white - black, 1e-6)
     return int((frac > _WHITE_FRAC).sum()) > max(1, _MAX_UNEXPLAINED * len(pts))
+
+
+# The face's rim band: print black all round on a sign (the directional
+# rectangle ends at 0.425, blur aside) [diameters], sampled at this many angles.
+_BAND_RADIUS = 0.45
+_N_BAND = 96
+_BAND_ANGLES = np.linspace(0.0, 2 * math.pi, _N_BAND, endpoint=False)
+_BAND_POINTS = _BAND_RADIUS * np.stack([np.cos(_BAND_ANGLES), np.sin(_BAND_ANGLES)], axis=1)
+# Least departure (white fraction) of an object's level from the print's black,
+# and that many robust noise sigmas at least.
+_OFF_BLACK_MIN = 0.03
+_OFF_BLACK_SIGMAS = 3.0
+# Longest arc an object in front may cover on the rim band [rad] (as
+# ``_MAX_RUN_HALF``: a wide member crossing the rim obliquely).
+_MAX_ARC_HALF = _MAX_RUN_HALF
+# Chord samples inside this radius [diameters] must show the arcs' level.
+_OFF_BLACK_CHORD_INNER = 0.43
+# Margin [diameters] for the arcs' angular quantisation when asking whether a
+# band covers a slot's centre.
+_OFF_BLACK_HIT = 0.02
+
+
+def _signed_runs(dev: list[float], sign: float, thr: float) -> list[tuple[float, float, float]]:
+    """Circular runs where ``sign * dev`` >= ``thr``: (centre [rad], half width [rad], mean dev)."""
+    return [r for r in _dark_runs([sign * d >= thr for d in dev], dev) if r[1] <= _MAX_ARC_HALF]
+
+
+def off_black_bands(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    black: float,
+    white: float,
+    targets: np.ndarray,
+) -> list[Band]:
+    """Objects in front whose gray is not the print's black: two arcs of the rim
+    band joined by a straight chord of the same level.
+
+    The rim band (just inside the disc's rim) is print black all round on a
+    sign. A member or conductor in front crosses it twice, and where its gray
+    level differs from the print's black (lighter or darker, by at least
+    ``_OFF_BLACK_MIN`` and several times the band's own noise) the two
+    crossings are arcs of that level, and the chord between them shows the
+    same level all the way across (an opaque bar hides what lies under it,
+    white or black). Such a chord is returned as a band in front when it
+    runs over one of ``targets`` ((T, 2) centres of black-read slots
+    [diameters]). This needs no dark background beyond the rim: a bar
+    lighter than the print in front of a dark photograph shows only here.
+    """
+    if len(targets) == 0:
+        return []
+    contrast = max(white - black, 1e-6)
+    frac = (_sample(gray, _project(image_H_sign, _BAND_POINTS)) - black) / contrast
+    # Levels against the face's black (not the band's median: on a small
+    # sign the background bleeds into the whole band).
+    # The noise from neighbouring samples' differences (an arc barely moves
+    # them), and runs found on a 3-sample circular mean.
+    noise = 1.4826 * float(np.median(np.abs(frac - np.roll(frac, 1)))) / math.sqrt(2.0)
+    thr = max(_OFF_BLACK_MIN, _OFF_BLACK_SIGMAS * noise)
+    dev_l = ((frac + np.roll(frac, 1) + np.roll(frac, -1)) / 3.0).tolist()
+    out: list[Band] = []
+    for sign in (1.0, -1.0):
+        runs = _signed_runs(dev_l, sign, thr)
+        if len(runs) < 2:
+            continue
+        ii, jj = np.triu_indices(len(runs), 1)
+        ang = np.array([r[0] for r in runs])
+        rim = 0.5 * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        pts = rim[ii, None] + _CHORD_T[None, :, None] * (rim[jj] - rim[ii])[:, None]
+        keep = np.hypot(pts[..., 0], pts[..., 1]) < _OFF_BLACK_CHORD_INNER
+        chord = (_sample(gray, _project(image_H_sign, pts.reshape(-1, 2))) - black) / contrast
+        chord = chord.reshape(keep.shape)
+        for k in range(len(ii)):
+            i, j = int(ii[k]), int(jj[k])
+            if not keep[k].any():
+                continue
+            level = 0.5 * (runs[i][2] + runs[j][2])
+            # Every chord point shows the object: off black on the same side,
+            # and no farther from the arcs' level than they are from black.
+            on = chord[k][keep[k]]
+            if not ((sign * on >= 0.5 * thr).all() and (np.abs(on - level) <= abs(level)).all()):
+                continue
+            # Each arc is the bar's footprint on the band: an oblique chord's
+            # is wider than the bar by 1 / cos(its angle to the radius).
+            u = (rim[j] - rim[i]) / max(float(np.hypot(*(rim[j] - rim[i]))), 1e-12)
+            slant = abs(float(rim[i] @ u)) / 0.5
+            half = 0.5 * math.sin(min(runs[i][1], runs[j][1])) * slant
+            if half < _SINGLE_MIN_HALF:
+                continue  # too thin to hide a coded slot
+            band = Band(rim[i], rim[j], half)
+            # A white slot reads black only with its centre under the bar.
+            if not (band.distance(targets) < half + _OFF_BLACK_HIT).any():
+                continue
+            band = _off_black_extent(gray, image_H_sign, band, black, contrast, sign * thr)
+            if band is not None and (band.distance(targets) < band.half_width).any():
+                out.append(band)
+    return out
+
+
+# Lines parallel to a band's chord, this far apart [diameters], sampled for
+# the object's extent across it; the least width [diameters] of an object
+# that hides a white slot (it covers the slot's inner samples, 0.075 either
+# side of its centre line; a conductor is 0.015-0.06 wide).
+_EXTENT_STEP = 0.025
+_EXTENT_OFFSETS = _EXTENT_STEP * np.arange(-6, 7)
+_MIN_HIDING_WIDTH = 0.1
+
+
+def _off_black_extent(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    band: Band,
+    black: float,
+    contrast: float,
+    signed_thr: float,
+) -> Band | None:
+    """The band re-centred on the object's measured extent across it, or None
+    when the object is narrower than ``_MIN_HIDING_WIDTH``.
+
+    Each line parallel to the chord counts as on the object when every point
+    of it on the face is off black on the object's side (at least half of
+    ``signed_thr``, whose sign says lighter or darker); the run of such lines
+    nearest the chord is the object.
+    """
+    d = band.p1 - band.p0
+    n = np.array([-d[1], d[0]]) / max(float(np.hypot(*d)), 1e-12)
+    line = band.p0[None, :] + _CHORD_T[:, None] * d[None, :]  # (_N_CHORD, 2)
+    pts = line[None] + _EXTENT_OFFSETS[:, None, None] * n  # (L, _N_CHORD, 2)
+    keep = np.hypot(pts[..., 0], pts[..., 1]) < _OFF_BLACK_CHORD_INNER
+    frac = (_sample(gray, _project(image_H_sign, pts.reshape(-1, 2))) - black) / contrast
+    off = np.sign(signed_thr) * frac.reshape(keep.shape) >= 0.5 * abs(signed_thr)
+    on = ((off | ~keep).all(axis=1) & (keep.sum(axis=1) >= 3)).tolist()
+    mid = len(on) // 2
+    # The run of lines on the object through the chord or next to it.
+    start = next((k for k in (mid, mid - 1, mid + 1) if on[k]), None)
+    if start is None:
+        return None
+    lo = hi = start
+    while lo > 0 and on[lo - 1]:
+        lo -= 1
+    while hi < len(on) - 1 and on[hi + 1]:
+        hi += 1
+    width = (hi - lo) * _EXTENT_STEP
+    if width < _MIN_HIDING_WIDTH:
+        return None
+    shift = 0.5 * (_EXTENT_OFFSETS[lo] + _EXTENT_OFFSETS[hi]) * n
+    return Band(band.p0 + shift, band.p1 + shift, 0.5 * width + 0.5 * _EXTENT_STEP)

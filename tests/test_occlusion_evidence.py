@@ -111,3 +111,59 @@ def test_a_thin_bar_along_a_white_slot_does_not_read_black(monkeypatch):
     assert decode_roi(image, codes).code in (None, "1011")
     monkeypatch.setattr(decoder, "_black_inside", lambda *a: True)
     assert decode_roi(image, codes).code == "0011"
+
+
+def _bar_lighter_than_the_print(code: str, slot: int, bar_frac: float | None):
+    """A clean crop of ``code`` on a background darker than the print, with a
+    member lighter than the print by ``bar_frac`` of the face's contrast laid
+    tangentially over coded slot ``slot`` (none when ``bar_frac`` is None).
+
+    Beyond the rim the bar is lighter than what surrounds it, so the ring
+    outside shows no dark run; only the rim band inside the disc shows it.
+    """
+    sign_px = 90.0
+    rng = np.random.default_rng(3)
+    crop = render_crop(
+        code, rng, sign_px=sign_px, rotation_deg=25.0, background="plain", noise_sigma=1.5
+    )
+    img = crop.image.astype(float)
+    hh, ww = img.shape
+    yy, xx = np.mgrid[0:hh, 0:ww]
+    uv1 = np.stack([xx.ravel(), yy.ravel(), np.ones(xx.size)])
+    xy = np.linalg.inv(crop.crop_H_sign) @ uv1
+    x, y = (xy[:2] / xy[2]).reshape(2, hh, ww)
+    disc = np.hypot(x, y) < 0.5
+    black, white = np.percentile(img[disc], 20), np.percentile(img[disc], 99)
+    img[~disc] = black - 8 + rng.normal(0, 1.5, int((~disc).sum()))
+    img[(np.hypot(x, y) > 0.7) & (x > 0.3) & (y > 0.3)] = 200  # a lit corner
+    if bar_frac is not None:
+        theta = slot_angle_rad(slot)
+        radial = np.array([np.cos(theta), np.sin(theta)])
+        tangential = np.array([np.sin(theta), -np.cos(theta)])
+        c = 0.3 * radial
+        ends = apply_homography(crop.crop_H_sign, np.stack([c - tangential, c + tangential]))
+        cover = np.zeros((hh, ww), np.uint8)
+        p0, p1 = (tuple(int(round(v * 16)) for v in p) for p in ends)
+        cv2.line(cover, p0, p1, 255, int(round(0.19 * sign_px)), cv2.LINE_AA, 4)
+        a = cover / 255.0
+        img = img * (1 - a) + a * (black + bar_frac * (white - black))
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize(("code", "slot", "wrong"), [("1010", 3, "1000"), ("1100", 1, "0100")])
+def test_a_member_lighter_than_the_print_over_a_white_slot_is_not_read_black(
+    code, slot, wrong, monkeypatch
+):
+    """A member 6 % of the contrast lighter than the print, over a background
+    darker than the print, hides white slot ``slot``: it was read ``wrong``
+    (another code of the paper's map). The rim band shows the member at both
+    crossings: the slot is erased and the reading refused (two codes fit)."""
+    assert decode_roi(_bar_lighter_than_the_print(code, slot, None), PAPER_CODES).code == code
+    image = _bar_lighter_than_the_print(code, slot, 0.06)
+    res = decode_roi(image, PAPER_CODES)
+    assert res.code is None and res.reason == DecodeReason.OCCLUDED
+    # Where the map's codes make it unique, the erased slot still decodes.
+    unique = decode_roi(image, [code, "0101", "0011"])
+    assert unique.code == code and slot in unique.erased_slots
+    monkeypatch.setattr(occlusion, "off_black_bands", lambda *a, **k: [])
+    assert decode_roi(image, PAPER_CODES).code == wrong
