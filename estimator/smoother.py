@@ -608,9 +608,16 @@ class _BatchGraph:
 
 
 def _batch_graph(
-    b: _GraphBuilder, init: np.ndarray, stamps_s: np.ndarray, starts: Sequence[int] = (0,)
+    b: _GraphBuilder,
+    init: np.ndarray,
+    stamps_s: np.ndarray,
+    starts: Sequence[int] = (0,),
+    motion: bool = True,
 ) -> _BatchGraph:
-    """Every factor of the flight (or of flights starting at frames ``starts``), initial values."""
+    """Every factor of the flight (or of flights starting at frames ``starts``), initial values.
+
+    ``motion=False`` leaves out the motion prior's factors (``_add_motion`` adds them).
+    """
     meas, s = b.m, b.s
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
@@ -628,9 +635,15 @@ def _batch_graph(
         first = graph.size()
         b.projection_factors(i, graph)
         factor[b.measurement_ids(i)] = np.arange(first, graph.size())
-        if i > 0 and i not in starts:
+        if motion and i > 0 and i not in starts:
             b.motion_factor(i, graph)
     return _BatchGraph(graph, values, factor)
+
+
+def _add_motion(b: _GraphBuilder, graph: gtsam.NonlinearFactorGraph) -> None:
+    """The motion prior's factors of one flight (frames 1..N-1) appended to ``graph``."""
+    for i in range(1, b.m.n_frames):
+        b.motion_factor(i, graph)
 
 
 def _optimize(
@@ -1457,19 +1470,72 @@ def log_evidence(
     ``-E(x*) - 0.5 sum_f log det Sigma_f - 0.5 log det H``: the graph error
     at the solution, the motion factors' normalisers (the only ones that
     depend on the prior's densities) and the Gauss-Newton information of the
-    whole graph (gtsam's Bayes tree gives log det R = 0.5 log det H).
+    whole graph (the eliminated net gives log det R = 0.5 log det H).
     """
-    s = replace(settings, compute_sigmas=False)
-    b = _GraphBuilder(meas, stamps_s, camera, s)
-    g = _batch_graph(b, _fill_initial(init_world_T_cam, default_world_T_cam), stamps_s)
-    n = meas.n_frames
-    result, _, _ = _optimize(g, _lm_params(b), s)
-    order = b.ordered(chain_ordering(n, len(meas.landmark_code), s.motion))
-    tree = g.graph.linearize(result).eliminateMultifrontal(order)
-    log_det_motion = 0.0
-    for i in range(1, n):
-        log_det_motion += _motion_log_det(b, i)
-    return float(-g.graph.error(result) - 0.5 * log_det_motion - tree.logDeterminant())
+    init = _fill_initial(init_world_T_cam, default_world_T_cam)
+    return EvidenceGraph(meas, stamps_s, init, camera, settings).evidence(settings)[0]
+
+
+class EvidenceGraph:
+    """One flight's factors but the motion prior, built once to weigh many motion priors.
+
+    Only the motion factors depend on the prior's densities: each
+    ``evidence`` call adds them to a copy of the rest (the factors are
+    shared, not rebuilt).
+    """
+
+    def __init__(
+        self,
+        meas: Measurements,
+        stamps_s: np.ndarray,
+        init_world_T_cam: np.ndarray,
+        camera: CameraModel,
+        settings: SmootherSettings,
+    ):
+        """``init_world_T_cam``: (N, 4, 4) initial poses of every frame; ``settings``: all but
+        the motion densities as every ``evidence`` call will have them."""
+        self.meas, self.stamps, self.camera = meas, stamps_s, camera
+        s = replace(settings, compute_sigmas=False)
+        b = _GraphBuilder(meas, stamps_s, camera, s)
+        self.base = _batch_graph(b, np.asarray(init_world_T_cam, float), stamps_s, motion=False)
+
+    def evidence(
+        self, settings: SmootherSettings, start: gtsam.Values | None = None
+    ) -> tuple[float, gtsam.Values]:
+        """(``log_evidence`` under ``settings``' motion prior, the solution it was evaluated at).
+
+        ``start``: the solution under another prior (same variables), a closer
+        start than the initial poses. The log-determinant is the Gauss-Newton
+        solve's last net (linearised one step, below the tolerance, before the
+        solution; Levenberg-Marquardt's solution eliminated again when that
+        took over).
+        """
+        s = replace(settings, compute_sigmas=False)
+        meas, n = self.meas, self.meas.n_frames
+        b = _GraphBuilder(meas, self.stamps, self.camera, s)
+        graph = gtsam.NonlinearFactorGraph(self.base.graph)
+        _add_motion(b, graph)
+        g = replace(self.base, graph=graph, values=self.base.values if start is None else start)
+        if s.kernel == GNC:
+            result, _, _ = _optimize(g, _lm_params(b), s)
+            net = None
+        else:
+            solved = _gauss_newton(g, b, abs_tol=1e-5)  # gtsam LM's default absolute tolerance
+            result, net = solved.values, solved.net
+        if net is None:
+            order = b.ordered(
+                segmented_ordering(n, len(meas.landmark_code), s.motion, s.segment_frames)
+            )
+            net = graph.linearize(result).eliminateSequential(order)
+        log_det: dict[float, float] = {}  # one per distinct time step
+        log_det_motion = 0.0
+        for i in range(1, n):
+            key = round(b.dt(i), 9)
+            if key not in log_det:
+                log_det[key] = _motion_log_det(b, i)
+            log_det_motion += log_det[key]
+        evidence = -graph.error(result) - 0.5 * log_det_motion - net.logDeterminant()
+        return float(evidence), result
 
 
 def _motion_log_det(b: _GraphBuilder, i: int) -> float:

@@ -20,9 +20,9 @@ from signpose.estimator.camera import CameraModel
 from signpose.estimator.smoother import (
     CONSTANT_VELOCITY,
     HUBER,
+    EvidenceGraph,
     Measurements,
     SmootherSettings,
-    log_evidence,
     project,
     smooth_batch,
 )
@@ -184,13 +184,17 @@ def tune_motion_prior(
     held = np.isin(meas.frame, held_frames)
     init = list(init_world_T_cam)
     scores: list[tuple[str, float, float]] = []
+    if tuning.criterion == EVIDENCE:  # the factors but the motion prior's, built once
+        graph = EvidenceGraph(meas, stamps_s, init_world_T_cam, camera, base)
 
     def best_of(name: str, grid: tuple[float, ...], s: SmootherSettings) -> float:
         tried = []
+        start = None  # each candidate's solve starts from the previous one's solution
         for value in grid:
             trial = replace(s, **{name: float(value)})
             if tuning.criterion == EVIDENCE:
-                score = -log_evidence(meas, stamps_s, init, camera, trial, default_world_T_cam)
+                evidence, start = graph.evidence(trial, start)
+                score = -evidence
             else:
                 score = _held_out_score(
                     meas, held, stamps_s, init, camera, trial, default_world_T_cam, tuning.cap_chi2
