@@ -29,7 +29,9 @@ from signpose.estimator.fusion import (
     pose_statuses,
 )
 from signpose.estimator.perframe import (
+    PER_FRAME_METHODS,
     FramePose,
+    PerFrameRun,
     PerFrameSettings,
     PoseFailure,
     SolvedPnP,
@@ -701,6 +703,16 @@ def _smoothed(
     )
 
 
+def per_frame_methods(s: EstimatorSettings) -> tuple[str, ...]:
+    """The per-frame methods the settings need (PnP also initialises the smoother)."""
+    wanted = set(s.methods)
+    return tuple(
+        name
+        for name in PER_FRAME_METHODS
+        if name in wanted or (name == "pnp" and "smoothed" in wanted)
+    )
+
+
 def _per_frame_methods(
     frames: Sequence[FrameObservations],
     sign_map: SignMap,
@@ -709,20 +721,45 @@ def _per_frame_methods(
     progress: bool,
     solved_pnp: Sequence[SolvedPnP],
     timing: dict[str, float],
+    done: PerFrameRun | None = None,
 ) -> dict[str, list[FramePose]]:
-    """The baseline and PnP poses the settings need (PnP also initialises the smoother)."""
+    """The baseline and PnP poses the settings need (PnP also initialises the smoother):
+    ``done``'s when given (checked to be these frames'), else solved here."""
+    if done is not None:
+        return _per_frame_done(frames, sign_map, camera, s, done, timing)
     per_frame: dict[str, list[FramePose]] = {}
-    wanted = set(s.methods)
-    for name in ("baseline", "pnp"):
-        # PnP also initialises the smoother (it works with fewer than 4 signs).
-        if name in wanted or (name == "pnp" and "smoothed" in wanted):
-            t0 = time.perf_counter()
-            solved = solved_pnp if name == "pnp" else ()
-            per_frame[name] = run_per_frame(
-                frames, sign_map, camera, name, s.per_frame, progress, solved
-            )
-            timing[name] = time.perf_counter() - t0
+    for name in per_frame_methods(s):
+        t0 = time.perf_counter()
+        solved = solved_pnp if name == "pnp" else ()
+        per_frame[name] = run_per_frame(
+            frames, sign_map, camera, name, s.per_frame, progress, solved
+        )
+        timing[name] = time.perf_counter() - t0
     return per_frame
+
+
+def _per_frame_done(
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    s: EstimatorSettings,
+    done: PerFrameRun,
+    timing: dict[str, float],
+) -> dict[str, list[FramePose]]:
+    """The per-frame poses a PerFrameRun made on exactly these frames with these settings.
+
+    Raises:
+        ValueError: it was fed other frames, another map, camera or settings, or
+            runs other methods (its poses would not be this flight's).
+    """
+    if done.methods != per_frame_methods(s) or not done.fed(frames, sign_map, camera, s.per_frame):
+        raise ValueError(
+            "the per-frame poses given were made on other frames, inputs or methods "
+            f"({len(done.frames)} frames, methods {done.methods}) than this estimate's "
+            f"({len(frames)} frames, methods {per_frame_methods(s)})"
+        )
+    timing.update(done.seconds)
+    return {name: list(done.poses[name]) for name in done.methods}
 
 
 def estimate_trajectories(
@@ -734,6 +771,7 @@ def estimate_trajectories(
     telemetry: Telemetry | None = None,
     fusion: FusionSettings | None = None,
     solved_pnp: Sequence[SolvedPnP] = (),
+    per_frame_done: PerFrameRun | None = None,
 ) -> EstimateResult:
     """Every requested method's trajectory for one flight.
 
@@ -747,6 +785,8 @@ def estimate_trajectories(
         solved_pnp: PnP calls the tracker made on these frames; the "pnp"
             method reuses those whose inputs are exactly its own (see
             ``perframe.run_per_frame``): the result is the same.
+        per_frame_done: the per-frame methods run on exactly these frames as they were
+            observed (``perframe.PerFrameRun``; else ValueError): taken, not solved again.
 
     Returns:
         The EstimateResult. Methods: "baseline", "pnp", "smoothed" as asked;
@@ -760,12 +800,12 @@ def estimate_trajectories(
     timing: dict[str, float] = {}
     methods: dict[str, MethodEstimate] = {}
     map_codes = set(sign_map.codes)
-    signs_seen = np.array(
-        [sum(o.code in map_codes for o in f.signs) for f in frames], dtype=np.int64
-    )
+    signs_seen = np.array([sum(o.code in map_codes for o in f.signs) for f in frames], np.int64)
     unknown = tuple((f.frame, o.code) for f in frames for o in f.signs if o.code not in map_codes)
     wanted = set(s.methods)
-    per_frame = _per_frame_methods(frames, sign_map, camera, s, progress, solved_pnp, timing)
+    per_frame = _per_frame_methods(
+        frames, sign_map, camera, s, progress, solved_pnp, timing, per_frame_done
+    )
     for name, poses in per_frame.items():
         if name in wanted:
             methods[name] = _from_frame_poses(name, stamps, poses, s.status)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import enum
 import pickle
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -574,29 +575,128 @@ def _same_object(a, b) -> bool:
         return False
 
 
+class PnPChain:
+    """Per-frame PnP fed frames in time order, each solved with the last pose as prior.
+
+    ``solve(frame, solved)`` takes ``solved``'s pose instead of solving again
+    when that call had exactly the inputs the chain gives the frame
+    (``SolvedPnP.answers``); the caller vouches that it had this map and camera.
+    """
+
+    def __init__(self, sign_map: SignMap, camera: CameraModel, settings: PerFrameSettings):
+        self.sign_map = sign_map
+        self.camera = camera
+        self.settings = settings
+        self._prior: np.ndarray | None = None
+        self.solves = 0  # solve_frame_pnp calls made (the others were reused)
+
+    def solve(self, frame: FrameObservations, solved: SolvedPnP | None = None) -> FramePose:
+        if solved is not None and solved.answers(frame, self._prior, self.settings):
+            pose = solved.pose
+        else:
+            pose = solve_frame_pnp(frame, self.sign_map, self.camera, self._prior, self.settings)
+            self.solves += 1
+        if pose.world_T_cam is not None:
+            self._prior = pose.world_T_cam
+        return pose
+
+
+class _SameContext:
+    """Whether a SolvedPnP call had this map and camera (copies from another process count)."""
+
+    def __init__(self, sign_map: SignMap, camera: CameraModel) -> None:
+        self.sign_map = sign_map
+        self.camera = camera
+        self._known: dict[tuple[int, int], bool] = {}  # (id(map), id(camera)) of the calls
+
+    def __call__(self, k: SolvedPnP) -> bool:
+        pair = (id(k.sign_map), id(k.camera))
+        if pair not in self._known:
+            self._known[pair] = _same_object(k.sign_map, self.sign_map) and _same_object(
+                k.camera, self.camera
+            )
+        return self._known[pair]
+
+
 def _chained_pnp(
     frames, sign_map: SignMap, camera: CameraModel, s: PerFrameSettings, solved
 ) -> list[FramePose]:
     """PnP frame by frame, each with the last pose as prior; a ``solved`` call with
     the same inputs is taken instead of solving again."""
     known = {id(k.observations): k for k in solved}
-    context: dict[tuple[int, int], bool] = {}  # (map, camera) of the calls: the same as ours?
-    for k in solved:
-        pair = (id(k.sign_map), id(k.camera))
-        if pair not in context:
-            context[pair] = _same_object(k.sign_map, sign_map) and _same_object(k.camera, camera)
+    same = _SameContext(sign_map, camera)
+    chain = PnPChain(sign_map, camera, s)
     out: list[FramePose] = []
-    prior = None
     for f in frames:
         k = known.get(id(f))
-        if k is not None and context[(id(k.sign_map), id(k.camera))] and k.answers(f, prior, s):
-            p = k.pose
-        else:
-            p = solve_frame_pnp(f, sign_map, camera, prior, s)
-        if p.world_T_cam is not None:
-            prior = p.world_T_cam
-        out.append(p)
+        out.append(chain.solve(f, k if k is not None and same(k) else None))
     return out
+
+
+PER_FRAME_METHODS = ("baseline", "pnp")
+
+
+class PerFrameRun:
+    """The per-frame methods fed one frame at a time, in flight order (while observing).
+
+    The same poses as ``run_per_frame`` on the frames fed (with the same
+    ``solved`` calls), kept per method; ``seconds`` is each method's time.
+    """
+
+    def __init__(
+        self,
+        sign_map: SignMap,
+        camera: CameraModel,
+        methods: Sequence[str],
+        settings: PerFrameSettings | None = None,
+    ) -> None:
+        unknown = set(methods) - set(PER_FRAME_METHODS)
+        if unknown:
+            raise ValueError(f"unknown per-frame method {sorted(unknown)[0]!r}")
+        self.sign_map = sign_map
+        self.camera = camera
+        self.settings = settings or PerFrameSettings()
+        self.methods = tuple(m for m in PER_FRAME_METHODS if m in methods)
+        self.frames: list[FrameObservations] = []
+        self.poses: dict[str, list[FramePose]] = {m: [] for m in self.methods}
+        self.seconds: dict[str, float] = dict.fromkeys(self.methods, 0.0)
+        self._baseline = BaselineTracker(sign_map, camera, self.settings)
+        self._pnp = PnPChain(sign_map, camera, self.settings)
+        self._same = _SameContext(sign_map, camera)
+
+    @property
+    def pnp_solves(self) -> int:
+        """solve_frame_pnp calls the PnP method made (frames not taken from ``solved``)."""
+        return self._pnp.solves
+
+    def add(self, frame: FrameObservations, solved: SolvedPnP | None = None) -> None:
+        """The next frame of the flight; ``solved``: the tracker's PnP call on it, if any."""
+        self.frames.append(frame)
+        if "baseline" in self.methods:
+            t0 = time.perf_counter()
+            self.poses["baseline"].append(self._baseline.solve(frame))
+            self.seconds["baseline"] += time.perf_counter() - t0
+        if "pnp" in self.methods:
+            t0 = time.perf_counter()
+            reuse = solved if solved is not None and self._same(solved) else None
+            self.poses["pnp"].append(self._pnp.solve(frame, reuse))
+            self.seconds["pnp"] += time.perf_counter() - t0
+
+    def fed(
+        self,
+        frames: Sequence[FrameObservations],
+        sign_map: SignMap,
+        camera: CameraModel,
+        settings: PerFrameSettings,
+    ) -> bool:
+        """True when this run was fed exactly ``frames`` (the very objects) with these inputs."""
+        return (
+            sign_map is self.sign_map
+            and camera is self.camera
+            and settings == self.settings
+            and len(frames) == len(self.frames)
+            and all(a is b for a, b in zip(frames, self.frames, strict=True))
+        )
 
 
 def run_per_frame(

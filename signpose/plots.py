@@ -397,18 +397,21 @@ def _cell_edges(t: np.ndarray) -> np.ndarray:
     return np.concatenate([[2 * t[0] - mid[0]], mid, [2 * t[-1] - mid[-1]]])
 
 
+# The plots of a run, in order: (file name, function(path, data) -> path, or None when
+# it has nothing to show: errors.png without a ground truth).
+PLOTS = (
+    ("trajectory_3d.png", plot_trajectory_3d),
+    ("views.png", plot_views),
+    ("signs_per_frame.png", plot_signs_per_frame),
+    ("errors.png", plot_errors),
+)
+
+
 def write_plots(out_dir: str | os.PathLike, data: PlotData) -> list[Path]:
     """All plots into ``out_dir``: trajectory_3d, views, signs_per_frame, errors (with GT)."""
     out = Path(out_dir)
-    written = [
-        plot_trajectory_3d(out / "trajectory_3d.png", data),
-        plot_views(out / "views.png", data),
-        plot_signs_per_frame(out / "signs_per_frame.png", data),
-    ]
-    err = plot_errors(out / "errors.png", data)
-    if err is not None:
-        written.append(err)
-    return written
+    written = [draw(out / name, data) for name, draw in PLOTS]
+    return [p for p in written if p is not None]
 
 
 def plot_gnss_track(
