@@ -355,6 +355,7 @@ def predict_signs(
     world_T_cam: np.ndarray,
     codes: tuple[str, ...],
     margin: float = 0.5,
+    sign_points: dict[str, np.ndarray] | None = None,
 ) -> list[PredictedSign]:
     """Where the map's signs should appear from ``world_T_cam``.
 
@@ -364,6 +365,8 @@ def predict_signs(
         world_T_cam: (4, 4) predicted camera pose.
         codes: the codes of interest.
         margin: keep signs up to ``margin`` diameters outside the image.
+        sign_points: ``homography_points(sign_map)``, when the caller keeps it
+            (a tracker predicts every frame from the same map); None: made here.
 
     Returns:
         The signs in front of the camera that fall in (or near) the image.
@@ -373,31 +376,60 @@ def predict_signs(
         return []
     centers = np.array([s.center_m for s in signs])
     px, depth = pixel_from_world_point(camera, world_T_cam, centers)
-    out = []
+    inside = []
     for s, (u, v), z in zip(signs, px, depth, strict=True):
         if not (z > MIN_PREDICTED_DEPTH_M and np.isfinite(u) and np.isfinite(v)):
             continue
         d = camera.fx * s.diameter_m / z
         m = margin * d
         if -m <= u <= camera.width - 1 + m and -m <= v <= camera.height - 1 + m:
-            h = _predicted_homography(s, camera, world_T_cam)
-            out.append(PredictedSign(s.code, (float(u), float(v)), float(d), h))
-    return out
-
-
-def _predicted_homography(
-    sign: MapSign, camera: CameraModel, world_T_cam: np.ndarray
-) -> np.ndarray | None:
-    """The oriented sign's predicted image_H_sign (detector.HOMOGRAPHY_POINTS), else None."""
-    if not sign.oriented:
-        return None
-    plane = sign.world_R_sign()[:, :2] * sign.diameter_m
-    px, depth = pixel_from_world_point(
-        camera, world_T_cam, sign.center_m + HOMOGRAPHY_POINTS @ plane.T
+            inside.append((s, float(u), float(v), float(d)))
+    if sign_points is None:
+        sign_points = homography_points([s for s, *_ in inside])
+    homographies = _predicted_homographies(
+        [s for s, *_ in inside], camera, world_T_cam, sign_points
     )
-    if not (depth > MIN_PREDICTED_DEPTH_M).all():
-        return None
-    return homography_from_points(px)
+    return [
+        PredictedSign(s.code, (u, v), d, h)
+        for (s, u, v, d), h in zip(inside, homographies, strict=True)
+    ]
+
+
+def homography_points(signs: Iterable[MapSign]) -> dict[str, np.ndarray]:
+    """code -> (4, 3) world points [m] of each oriented sign's detector.HOMOGRAPHY_POINTS."""
+    points = {}
+    for sign in signs:
+        if sign.oriented:
+            plane = sign.world_R_sign()[:, :2] * sign.diameter_m
+            points[sign.code] = sign.center_m + HOMOGRAPHY_POINTS @ plane.T
+    return points
+
+
+def _predicted_homographies(
+    signs: list[MapSign],
+    camera: CameraModel,
+    world_T_cam: np.ndarray,
+    sign_points: dict[str, np.ndarray],
+) -> list[np.ndarray | None]:
+    """Each sign's predicted image_H_sign (detector.HOMOGRAPHY_POINTS); None for a sign
+    without orientation or with a point behind the camera.
+
+    The points of all signs are projected in one call: the same bits as one call per
+    sign (each point is projected on its own; checked on the 300 poses of both bench
+    flights), and with the points made once per tracker 2.2 -> 0.6 ms per frame.
+    """
+    oriented = [s for s in signs if s.code in sign_points]
+    if not oriented:
+        return [None] * len(signs)
+    points = np.concatenate([sign_points[s.code] for s in oriented])
+    px, depth = pixel_from_world_point(camera, world_T_cam, points)
+    n = len(HOMOGRAPHY_POINTS)
+    by_code = {}
+    for k, sign in enumerate(oriented):
+        rows = slice(k * n, (k + 1) * n)
+        ok = (depth[rows] > MIN_PREDICTED_DEPTH_M).all()
+        by_code[sign.code] = homography_from_points(px[rows]) if ok else None
+    return [by_code.get(s.code) for s in signs]
 
 
 def _extrapolate(prev: np.ndarray, prev2: np.ndarray | None, steps: int = 1) -> np.ndarray:
@@ -464,6 +496,7 @@ class FrameTracker:
         self.codes = codes
         self.settings = settings
         self.tracking = settings.tracking and sign_map is not None and camera is not None
+        self._sign_points = homography_points(sign_map.signs) if self.tracking else {}
         # (position, world_T_cam) of the last frame finished, when it was posed,
         # and the pose of the frame before it (for the velocity).
         self._last: tuple[int, np.ndarray] | None = None
@@ -482,7 +515,12 @@ class FrameTracker:
         last_position, world_T_cam = self._last
         predicted_T = _extrapolate(world_T_cam, self._before_last, position - last_position)
         predictions = predict_signs(
-            self.sign_map, self.camera, predicted_T, self.codes, self.settings.prediction_margin
+            self.sign_map,
+            self.camera,
+            predicted_T,
+            self.codes,
+            self.settings.prediction_margin,
+            self._sign_points,
         )
         since = position - max(self._last_full, self._last_refresh)
         refresh = since >= self.settings.track_refresh_frames
