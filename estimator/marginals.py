@@ -16,9 +16,11 @@ chordality are themselves parent pairs computed earlier in the pass.
 The smoother's graphs have a chain of frames (each frame's parents: the next
 frame and every landmark) and a dense tail (the landmarks, the bias, the sign
 centres) that every frame touches; the tail is inverted once as one dense
-block and each frame keeps its row against it (``d x D``) only until the last
-frame that needs it is done, so a pass costs O(N d D^2) time and O(d D)
-memory beyond the N outputs, instead of one Bayes-tree marginal per pose.
+block; each frame's mean given the tail (``A_i``, ``d x D``) is kept only until
+the last frame that needs it is done, and ``A_i Sigma_TT A_i^T`` is one
+matrix product per batch of frames (``_backward``), so a pass costs
+O(N d D^2) time (mostly in those batched products) and O(d D) memory beyond
+the N outputs, instead of one Bayes-tree marginal per pose.
 """
 
 from __future__ import annotations
@@ -46,10 +48,11 @@ class Conditional:
     S: np.ndarray
 
 
-def _tail_covariance(
+def _tail_sqrt_covariance(
     conds: Sequence[Conditional], dims: dict[int, int]
 ) -> tuple[dict[int, int], np.ndarray]:
-    """(offset of each tail variable, dense covariance of the tail) from its conditionals."""
+    """(offset of each tail variable, R_T^-1) from the tail's conditionals: the tail's
+    covariance is ``R_T^-1 R_T^-T``."""
     offset: dict[int, int] = {}
     total = 0
     for c in conds:
@@ -64,8 +67,7 @@ def _tail_covariance(
             dp = dims[p]
             R[o : o + d, offset[p] : offset[p] + dp] = c.S[:, col : col + dp]
             col += dp
-    Rinv = np.linalg.solve(R, np.eye(total)) if total else R
-    return offset, Rinv @ Rinv.T
+    return offset, (np.linalg.solve(R, np.eye(total)) if total else R)
 
 
 @dataclass
@@ -88,15 +90,17 @@ class _Node:
 
 def _merge(node: _Node, c: Conditional, dims: dict[int, int]) -> _Node:
     """``node`` with the conditional of its parent ``c.key`` appended (same other parents)."""
-    cols: dict[int, tuple[int, int]] = {}
-    col = 0
-    for p in node.parents:
-        cols[p] = (col, col + dims[p])
-        col += dims[p]
-    a, b = cols[c.key]
-    if tuple(p for p in node.parents if p != c.key) == c.parents:  # same order: drop c's columns
+    k = node.parents.index(c.key)
+    a = sum(map(dims.__getitem__, node.parents[:k]))
+    b = a + dims[c.key]
+    if node.parents[:k] + node.parents[k + 1 :] == c.parents:  # same order: drop c's columns
         S_top = np.concatenate([node.S[:, :a], node.S[:, b:]], axis=1)
     else:
+        cols: dict[int, tuple[int, int]] = {}
+        col = 0
+        for p in node.parents:
+            cols[p] = (col, col + dims[p])
+            col += dims[p]
         S_top = np.concatenate([node.S[:, cols[p][0] : cols[p][1]] for p in c.parents], axis=1)
     d0, d1 = node.R.shape[0], c.R.shape[0]
     R = np.zeros((d0 + d1, d0 + d1))
@@ -107,16 +111,23 @@ def _merge(node: _Node, c: Conditional, dims: dict[int, int]) -> _Node:
     return _Node(node.keys + [c.key], node.dims + [d1], R, c.parents, S)
 
 
+def _merges(last: _Node, c: Conditional) -> bool:
+    """Whether ``c`` is ``last``'s parent and their other parents agree."""
+    if len(last.parents) != len(c.parents) + 1 or c.key not in last.parents:
+        return False
+    k = last.parents.index(c.key)
+    rest = last.parents[:k] + last.parents[k + 1 :]
+    return rest == c.parents or set(rest) == set(c.parents)
+
+
 def _nodes(conds: Sequence[Conditional], dims: dict[int, int]) -> list[_Node]:
     """Supernodes: a conditional merged with the next when that is its parent and the
     remaining parents agree (a frame's pose and velocity)."""
     nodes: list[_Node] = []
     for c in conds:
-        if nodes:
-            last = nodes[-1]
-            if c.key in last.parents and set(last.parents) - {c.key} == set(c.parents):
-                nodes[-1] = _merge(last, c, dims)
-                continue
+        if nodes and _merges(nodes[-1], c):
+            nodes[-1] = _merge(nodes[-1], c, dims)
+            continue
         nodes.append(_Node([c.key], [dims[c.key]], c.R, c.parents, c.S))
     return nodes
 
@@ -130,33 +141,81 @@ def _split_parents(
     cache: dict,
 ) -> None:
     """Fill ``node``'s tail part and its free parents as whole nodes (zeros for absent keys)."""
-    signature = tuple(p if p in offset else -dims[p] for p in node.parents)
+    parents = node.parents
+    in_tail = tuple(map(offset.__contains__, parents))
+    signature = (
+        in_tail,
+        tuple(map(dims.__getitem__, parents)),
+        tuple(filter(offset.__contains__, parents)),
+    )
     hit = cache.get(signature)
     if hit is None:
-        s_cols, tail_idx, col = [], [], 0
-        for p in node.parents:
-            if p in offset:
+        s_cols, tail_idx, free_cols, col = [], [], [], 0
+        for k, p in enumerate(parents):
+            if in_tail[k]:
                 s_cols += range(col, col + dims[p])
                 tail_idx += range(offset[p], offset[p] + dims[p])
+            else:
+                free_cols.append((k, col, dims[p]))
             col += dims[p]
-        hit = (np.asarray(s_cols, np.int64), np.asarray(tail_idx, np.int64))
+        hit = (np.asarray(s_cols, np.int64), np.asarray(tail_idx, np.int64), free_cols)
         cache[signature] = hit
-    s_cols, node.tail_idx = hit
+    s_cols, node.tail_idx, free_cols = hit
     node.S_tail = node.S[:, s_cols]
     free: dict[int, np.ndarray] = {}
-    col = 0
-    for p in node.parents:
-        dp = dims[p]
-        if p not in offset:
-            j, o = where[p]
-            block = free.setdefault(j, np.zeros((node.R.shape[0], node_dim[j])))
-            block[:, o : o + dp] = node.S[:, col : col + dp]
-        col += dp
+    for k, col, dp in free_cols:
+        j, o = where[parents[k]]
+        block = free.setdefault(j, np.zeros((node.R.shape[0], node_dim[j])))
+        block[:, o : o + dp] = node.S[:, col : col + dp]
     node.free = list(free.items())
 
 
-def _backward(nodes: list[_Node], tail_cov: np.ndarray, wanted_nodes: set[int]) -> dict:
-    """Each node's marginal covariance, last node first (see the module docstring)."""
+# Nodes whose tail rows wait for one matrix product with the tail's square root.
+_BATCH = 256
+
+
+class _TailProducts:
+    """``A_i Sigma_TT A_i^T`` of many nodes, as one product ``A @ R_T^-1`` per batch."""
+
+    def __init__(self, tail_rinv: np.ndarray, diag: dict[int, np.ndarray]):
+        self.tail_rinv = tail_rinv
+        self.diag = diag
+        self.pending: list[tuple[int, np.ndarray]] = []
+
+    def add(self, i: int, A: np.ndarray) -> None:
+        self.pending.append((i, A))
+        if len(self.pending) >= _BATCH:
+            self.flush()
+
+    def flush(self) -> None:
+        by_dim: dict[int, list[tuple[int, np.ndarray]]] = {}
+        for i, A in self.pending:
+            by_dim.setdefault(A.shape[0], []).append((i, A))
+        self.pending = []
+        for d, items in by_dim.items():
+            W = (np.concatenate([A for _, A in items]) @ self.tail_rinv).reshape(len(items), d, -1)
+            outer = W @ W.transpose(0, 2, 1)
+            for (i, _), o in zip(items, outer, strict=True):
+                q = self.diag[i] + o
+                self.diag[i] = 0.5 * (q + q.T)
+
+
+def _backward(
+    nodes: list[_Node], tail_rinv: np.ndarray, wanted_nodes: set[int]
+) -> dict[int, np.ndarray]:
+    """Each wanted node's marginal covariance, last node first (see the module docstring).
+
+    Split by the tail T: ``x_i = A_i x_T + e_i`` with ``e`` independent of
+    ``x_T``, so ``Sigma_ii = Q_ii + A_i Sigma_TT A_i^T`` (``Q = Cov(e)``).
+    Backwards, with B_ij = R_i^-1 S_ij over the free parents j:
+
+        A_i  = -R_i^-1 (S_iT + sum_j S_ij A_j)
+        Q_ig = -sum_j B_ij Q_jg          (g a free parent of i)
+        Q_ii =  R_i^-1 R_i^-T + sum_jk B_ij Q_jk B_ik^T
+
+    The sequential part is d x D and d x d products; the D x D work is one
+    product per batch of nodes with ``R_T^-1`` (``Sigma_TT = R_T^-1 R_T^-T``).
+    """
     first_child: dict[int, int] = {}
     for i, nd in enumerate(nodes):
         for j, _ in nd.free:
@@ -164,48 +223,52 @@ def _backward(nodes: list[_Node], tail_cov: np.ndarray, wanted_nodes: set[int]) 
     done_at: dict[int, list[int]] = {}
     for j, i in first_child.items():
         done_at.setdefault(i, []).append(j)
-    row: dict[int, np.ndarray] = {}  # node -> (d, D) covariance against the tail
-    diag: dict[int, np.ndarray] = {}
+    D = tail_rinv.shape[0]
+    A_of: dict[int, np.ndarray] = {}  # node -> (d, D) E[x_node | x_T] = A x_T
+    Q: dict[int, np.ndarray] = {}
     pair: dict[tuple[int, int], np.ndarray] = {}  # (i, j), i < j
     pairs_of: dict[int, list[tuple[int, int]]] = {}
+    diag: dict[int, np.ndarray] = {}
+    tail = _TailProducts(tail_rinv, diag)
 
     def get(a: int, b: int) -> np.ndarray:
         if a == b:
-            return diag[a]
+            return Q[a]
         return pair[(a, b)] if a < b else pair[(b, a)].T
 
     def drop(j: int) -> None:
-        row.pop(j, None)
+        A_of.pop(j, None)
+        Q.pop(j, None)
         for ab in pairs_of.pop(j, []):
             pair.pop(ab, None)
-        if j not in wanted_nodes:
-            diag.pop(j, None)
 
     for i in range(len(nodes) - 1, -1, -1):
         nd = nodes[i]
-        St, idx = nd.S_tail, nd.tail_idx
-        M_tail = St @ tail_cov[idx]
+        d = nd.R.shape[0]
+        Rinv = np.linalg.inv(nd.R)
+        M = np.zeros((d, D))
+        M[:, nd.tail_idx] = nd.S_tail
+        B = []
         for f, Sf in nd.free:
-            M_tail += Sf @ row[f]
-        Rinv = np.linalg.solve(nd.R, np.eye(nd.R.shape[0]))
-        K_tail = -Rinv @ M_tail
-        acc = K_tail[:, idx] @ St.T
-        for g, Sg in nd.free:
-            m = St @ row[g][:, idx].T
-            for f, Sf in nd.free:
-                m += Sf @ get(f, g)
-            K = -Rinv @ m
-            pair[(i, g)] = K
+            M += Sf @ A_of[f]
+            B.append((f, Rinv @ Sf))
+        A = -Rinv @ M
+        q = Rinv @ Rinv.T
+        for g, Bg in B:
+            m = sum(Bf @ get(f, g) for f, Bf in B)
+            pair[(i, g)] = -m
             pairs_of.setdefault(i, []).append((i, g))
             pairs_of.setdefault(g, []).append((i, g))
-            acc += K @ Sg.T
-        row[i] = K_tail
-        cov = Rinv @ Rinv.T - acc @ Rinv.T
-        diag[i] = 0.5 * (cov + cov.T)
+            q = q + m @ Bg.T
+        A_of[i], Q[i] = A, q
+        if i in wanted_nodes:
+            diag[i] = q
+            tail.add(i, A)
         for j in done_at.get(i, []):
             drop(j)
         if i not in first_child:
             drop(i)
+    tail.flush()
     return diag
 
 
@@ -225,7 +288,8 @@ def selected_covariances(
         key -> (d, d) covariance.
     """
     dims = {c.key: c.R.shape[0] for c in conditionals}
-    offset, tail_cov = _tail_covariance(conditionals[tail_start:], dims)
+    offset, tail_rinv = _tail_sqrt_covariance(conditionals[tail_start:], dims)
+    tail_cov = tail_rinv @ tail_rinv.T
     nodes = _nodes(conditionals[:tail_start], dims)
     where: dict[int, tuple[int, int]] = {}
     for j, nd in enumerate(nodes):
@@ -238,7 +302,7 @@ def selected_covariances(
     for nd in nodes:
         _split_parents(nd, dims, offset, where, node_dim, cache)
     want = [k for k in wanted if k not in offset]
-    diag = _backward(nodes, tail_cov, {where[k][0] for k in want})
+    diag = _backward(nodes, tail_rinv, {where[k][0] for k in want})
     out = {}
     for key in wanted:
         d = dims[key]
