@@ -29,8 +29,9 @@ Each merged region goes to ``frontend.decoder.decode_region``; a region many
 windows agree on that the decoder refuses for its crop (the rim cut, the
 parts inconsistent, no location rectangle) is tried again with a tighter and
 a wider crop (``retry_margins``: the decoder's verdict depends on how much
-background the crop holds, most for signs near the 24 px window); regions that
-still do not decode are dropped and counted (``n_undecoded``). Decoded signs are
+background the crop holds, most for signs near the 24 px window; full-frame
+searches only); regions that still do not decode are dropped and counted
+(``n_undecoded``). Decoded signs are
 ``frontend.observations.SignObservation``; ``Detector`` is the protocol the
 pipeline calls (``SignDetector`` here, a replay of known answers in tests).
 """
@@ -205,10 +206,22 @@ class DetectorSettings:
             drops the background that joins a small sign's disc, a wide one
             holds a rim the box cut (scripts/eval_detector.py --frames 60:
             recall 88.9 -> 91.8 %, 0 wrong; photo flights +12 signs of 480).
+        retry_thresholds: the decoder's binarisations tried on a retry
+            (``DecoderSettings.thresholds``): on the evaluation's flights
+            (held-out, photo, hard) these read every sign that all five
+            read, for 70-80 % of the time ("otsu" and "open" read none).
         retry_min_windows: only regions at least this many cascade windows
             agree on are retried (every region that read on a retry in the
             evaluation had >= 20 in 9 of 10 cases; the weak regions of
             photographs' textures do not pay for two more decodes each).
+            Full-frame searches only: tracking's searched regions are signs
+            its verification refused (mostly occluded ones, which a retry
+            does not read: scripts/bench_frontend.py's hard flight, 0 more
+            found for +25 % of tracking's time).
+        retry_small_px: regions at most this big [px] are retried whatever
+            their window count: the sliding window's smallest (24 px)
+            windows fit a sign near that size only a few times, and such
+            crops are cheap to decode (paper mode's 18-30 px signs).
         decode: run the decoder (False: return raw merged regions, for tests).
     """
 
@@ -236,7 +249,9 @@ class DetectorSettings:
     track_scale_factor: float = 1.12
     track_min_found_frac: float = 0.5
     retry_margins: tuple[float, ...] = (0.05, 0.5)
+    retry_thresholds: tuple[str, ...] = ("mean", "high", "adaptive")
     retry_min_windows: int = 20
+    retry_small_px: float = 28.0
     decode: bool = True
 
 
@@ -451,7 +466,8 @@ class SignDetector:
         if self._cascade.empty():
             raise InputError(f"{path}: not an OpenCV cascade classifier XML")
         self._retry_settings = tuple(
-            DecoderSettings(region_margin=m) for m in self.settings.retry_margins
+            DecoderSettings(region_margin=m, thresholds=self.settings.retry_thresholds)
+            for m in self.settings.retry_margins
         )
         w, h = self._cascade.getOriginalWindowSize()
         if w != h:  # signs are discs: a cascade of w x h windows was trained on something else
@@ -679,12 +695,13 @@ class SignDetector:
         timing: dict[str, float],
         t0: float,
         fell_back: bool = False,
+        retry: bool = True,
     ) -> DetectionResult:
         t1 = time.perf_counter()
         regions, counts = self.merge(raw)
         t2 = time.perf_counter()
         timing["merge"] = timing.get("merge", 0.0) + (t2 - t1) * 1e3
-        dets, undecoded = self._decode(gray, regions, counts, codes)
+        dets, undecoded = self._decode(gray, regions, counts, codes, retry)
         t3 = time.perf_counter()
         timing["decode"] = timing.get("decode", 0.0) + (t3 - t2) * 1e3
         timing["total"] = (t3 - t0) * 1e3
@@ -698,7 +715,9 @@ class SignDetector:
         regions: np.ndarray,
         counts: np.ndarray,
         codes: Iterable[str] | None,
+        retry: bool = True,
     ) -> tuple[tuple[SignObservation, ...], int]:
+        """(readings, one per sign; regions that did not read), with crop retries if ``retry``."""
         codes = tuple(codes) if codes is not None else None
         if not self.settings.decode:
             raw = tuple(
@@ -716,7 +735,7 @@ class SignDetector:
         undecoded = 0
         for (x, y, w, h), n in zip(regions, counts, strict=True):
             box = (float(x), float(y), float(w), float(h))
-            res = self._decode_box(gray, box, n, codes)
+            res = self._decode_box(gray, box, n, codes, retry)
             if res.code is None:
                 undecoded += 1
                 continue
@@ -751,9 +770,13 @@ class SignDetector:
         box: tuple[float, float, float, float],
         n_windows: float,
         codes: tuple[str, ...] | None,
+        retry: bool = True,
     ) -> DecodeResult:
         res = decode_region(gray, box, codes)
-        if res.ok or res.reason in NOT_RETRIED or n_windows < self.settings.retry_min_windows:
+        if not retry or res.ok or res.reason in NOT_RETRIED:
+            return res
+        s = self.settings
+        if n_windows < s.retry_min_windows and max(box[2], box[3]) > s.retry_small_px:
             return res
         for settings in self._retry_settings:
             again = decode_region(gray, box, codes, settings)
@@ -819,7 +842,7 @@ class SignDetector:
         t1 = time.perf_counter()
         raw = self._tracked_raw(gray, rest)
         timing = {"verify": (t1 - t0) * 1e3, "cascade": (time.perf_counter() - t1) * 1e3}
-        res = self._finish(gray, raw, codes, "track", timing, t0)
+        res = self._finish(gray, raw, codes, "track", timing, t0, retry=False)
         timing["decode"] += timing["verify"]
         res = replace(
             res,
@@ -907,7 +930,7 @@ class SignDetector:
         regions, counts = self.merge(
             self._tracked_raw(gray, [p], self.settings.track_anchor_margin)
         )
-        dets, _ = self._decode(gray, regions, counts, codes)
+        dets, _ = self._decode(gray, regions, counts, codes, retry=False)
         out = []
         for j, q in enumerate(predictions):
             mine = [d for d in dets if d.code == q.code]

@@ -19,22 +19,24 @@ from signpose.maps.loader import bundled_map_path, load_map
 from signpose.io.boxes import read_boxes
 from signpose.sim.flight import SimSettings, simulate
 
-DIAMETER_PX = 40
+DIAMETER_PX = 60  # its cut box (36 px) is above retry_small_px
 CUT_BOX_FRAC = 0.6  # a region this fraction of the disc: the default crop cuts its rim
 
 
-def _sign_frame(code: str = "0101") -> tuple[np.ndarray, tuple[float, float, float, float]]:
-    """(200, 200) frame with one sign of DIAMETER_PX at its middle, and a box cutting its rim."""
+def _sign_frame(
+    code: str = "0101", diameter_px: int = DIAMETER_PX
+) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """(200, 200) frame with one sign at its middle, and a box cutting its rim."""
     frame = np.full((200, 200), 150, np.uint8)
-    face = render_sign_png(code, DIAMETER_PX).astype(float)
-    yy, xx = np.mgrid[:DIAMETER_PX, :DIAMETER_PX]
-    disc = np.hypot(xx - (DIAMETER_PX - 1) / 2, yy - (DIAMETER_PX - 1) / 2) <= DIAMETER_PX / 2
-    x0 = 100 - DIAMETER_PX // 2
-    patch = frame[x0 : x0 + DIAMETER_PX, x0 : x0 + DIAMETER_PX]
-    frame[x0 : x0 + DIAMETER_PX, x0 : x0 + DIAMETER_PX] = np.where(
+    face = render_sign_png(code, diameter_px).astype(float)
+    yy, xx = np.mgrid[:diameter_px, :diameter_px]
+    disc = np.hypot(xx - (diameter_px - 1) / 2, yy - (diameter_px - 1) / 2) <= diameter_px / 2
+    x0 = 100 - diameter_px // 2
+    patch = frame[x0 : x0 + diameter_px, x0 : x0 + diameter_px]
+    frame[x0 : x0 + diameter_px, x0 : x0 + diameter_px] = np.where(
         disc, np.round(20 + face * (230 - 20) / 255), patch
     )
-    side = CUT_BOX_FRAC * DIAMETER_PX
+    side = CUT_BOX_FRAC * diameter_px
     return frame, (100 - side / 2, 100 - side / 2, side, side)
 
 
@@ -49,11 +51,24 @@ def test_a_region_whose_crop_cuts_the_rim_is_read_with_a_wider_crop():
     plain = SignDetector(settings=DetectorSettings(retry_margins=()))
     assert plain.decode_box(frame, box, n_windows=40).reason == DecodeReason.CUT_BY_EDGE
     weak = DetectorSettings().retry_min_windows - 1
+    assert box[2] > DetectorSettings().retry_small_px
     assert det.decode_box(frame, box, n_windows=weak).reason == DecodeReason.CUT_BY_EDGE
     # The region goes through the same path when a frame is decoded.
     dets, undecoded = det._decode(frame, np.array([box]), np.array([40]), None)
     assert [d.code for d in dets] == ["0101"] and undecoded == 0
     assert plain._decode(frame, np.array([box]), np.array([40]), None) == ((), 1)
+    # Tracking's searched regions are not retried (its cost is kept).
+    assert det._decode(frame, np.array([box]), np.array([40]), None, retry=False) == ((), 1)
+
+
+def test_a_small_region_is_retried_whatever_its_window_count():
+    """The sliding window's 24 px windows fit a sign near that size only a few times."""
+    frame, box = _sign_frame(diameter_px=40)
+    assert box[2] <= DetectorSettings().retry_small_px
+    assert decode_region(frame, box).reason == DecodeReason.CUT_BY_EDGE
+    assert SignDetector().decode_box(frame, box, n_windows=2).code == "0101"
+    off = SignDetector(settings=DetectorSettings(retry_small_px=0.0))
+    assert off.decode_box(frame, box, n_windows=2).code is None
 
 
 @pytest.mark.parametrize("reason", [DecodeReason.OCCLUDED, DecodeReason.CODE_NOT_IN_MAP])
