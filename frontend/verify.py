@@ -33,9 +33,10 @@ The result is a ``DecodeResult`` filled as the decoder fills it (keypoints,
 ellipse, ``sigma_inputs`` and ``keypoint_sigma_px`` from the same
 ``keypoint_sigmas``), so the sigma calibration holds for verified signs too.
 
-Cost: about 0.8 ms of CPU per verified sign on scripts/bench_frontend.py's
-crops (40 frames per flight, a loaded 2-core machine), two thirds of it in
-the decoder's checks called at the refit (``_accept_code`` about 0.45 ms,
+Cost: about 1.3 ms of CPU per verified sign on scripts/bench_frontend.py's
+crops (40 frames per flight, a loaded 2-core machine), four fifths of it in
+what the decoder does for an accepted reading, called here at the refit
+(``keypoint_noise.measure_parts`` about 0.5 ms, ``_accept_code`` 0.4 ms,
 ``_read_slots`` twice 0.1 ms, ``_reading_result``, ``_fill_deficit``). Own
 copies of those checks fed from one remap of every sample were not written:
 they would have to follow each change of the decoder's acceptance by hand,
@@ -56,6 +57,7 @@ from signpose.frontend.decoder import (
     _CODE_PARTS,
     _LOCATION_SIDE,
     _PART_CENTRES,
+    _PART_NAMES,
     _PART_QUADS,
     _RIM,
     _UNIT_STEPS,
@@ -76,6 +78,7 @@ from signpose.frontend.decoder import (
     _safe_disc_ellipse,
 )
 from signpose.frontend.homography import fit_homography, polygon_centroids
+from signpose.frontend.keypoint_noise import measure_parts
 
 
 class VerifyOutcome(enum.StrEnum):
@@ -355,8 +358,13 @@ def _refit_and_check(
     if ellipse is None:
         return _miss(VerifyOutcome.NOT_VERIFIABLE)
     deficit = _fill_deficit(aligned, parts, white_area, np.ones(n, bool))
+    # What the image shows around each part, for its keypoint's sigma, as the
+    # decoder measures it for an accepted reading (no part is covered here).
+    names = [_PART_NAMES[p] for p in parts]
+    measured = measure_parts(g, h_ref, names, _PART_QUADS[parts], cents, first.black, first.white)
+    disturbance = max(occ.disturbance, deficit)
     result = _reading_result(
-        code, parts, uv, h_ref, ellipse, first, rms, False, max(occ.disturbance, deficit), ()
+        code, parts, uv, h_ref, ellipse, first, rms, False, disturbance, (), measured
     )
     return Verification(VerifyOutcome.VERIFIED, result)
 

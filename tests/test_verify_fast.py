@@ -17,6 +17,7 @@ from signpose.frontend import decoder as dec
 from signpose.frontend import verify as ver
 from signpose.frontend.decoder import _CODE_PARTS
 from signpose.frontend.homography import fit_homography, polygon_centroids
+from signpose.frontend.keypoint_noise import measure_parts
 from signpose.frontend.verify import VerifyOutcome, verify_sign
 
 from signpose.sim.crops import render_crop
@@ -136,8 +137,21 @@ def _reference_verify_sign(image, image_H_sign, code, codes=None):
         return miss(VerifyOutcome.NOT_VERIFIABLE)
     deficit = dec._fill_deficit(aligned, parts, white_area, valid)
     uv = dec._project(h_ref, dec._PART_CENTRES[parts])
+    names = [dec._PART_NAMES[p] for p in parts]
+    quads = dec._PART_QUADS[parts]
+    measured = measure_parts(g, h_ref, names, quads, cents, first.black, first.white)
     result = dec._reading_result(
-        code, parts, uv, h_ref, ellipse, first, rms, False, max(occ.disturbance, deficit), ()
+        code,
+        parts,
+        uv,
+        h_ref,
+        ellipse,
+        first,
+        rms,
+        False,
+        max(occ.disturbance, deficit),
+        (),
+        measured,
     )
     return ver.Verification(VerifyOutcome.VERIFIED, result)
 
