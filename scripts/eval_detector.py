@@ -20,7 +20,10 @@ pylon (``SimSettings(photo=True)``, scikit-image's data images; each flight
 gets the photograph its seed picks) and prints, for the default detector
 (group merge), a table per background and mode: recall S/N and T/N over
 signs >= 18 px, precision and T/D (``--json``: the same under
-``backgrounds``).
+``backgrounds``). ``--hard-flights K`` adds K flights of the same kind with
+every real-pylon condition on (``SimSettings.hard()``: photographs, members
+and conductors in front of signs, dirt, fading, glare, JPEG 70-90, vibration,
+exposure steps), the condition "hard" in the same table.
 
 Every sign the default detector (group merge) misses is given one cause, per
 condition (flight or background; occluded or clear) and size bin
@@ -38,7 +41,8 @@ condition (flight or background; occluded or clear) and size bin
 
 and the decoder's reasons for the refused regions are counted.
 
-    .venv/bin/python scripts/eval_detector.py [--quick] [--photo-flights 8] [--json PATH]
+    .venv/bin/python scripts/eval_detector.py [--quick] [--photo-flights 8] [--hard-flights 4]
+        [--json PATH]
 """
 
 from __future__ import annotations
@@ -241,36 +245,46 @@ def score(detections, truth: dict, table: dict, readable: set[str]) -> None:
         table[b]["T" if match else "F"] += 1
 
 
+def condition_flights(
+    photo_flights: int, hard_flights: int, frames: int, seed: int
+) -> list[tuple[str, str, SimSettings]]:
+    """(folder, label, settings) of the photo flights (two procedural ones first,
+    as the reference) and the hard flights (``SimSettings.hard()``: every
+    real-pylon condition at once), all climb-hover-depart at 28 m.
+
+    The label names the condition; "" = the frame's background.
+    """
+    base = SimSettings(
+        frames=frames, trajectory="climb-hover-depart", distance_m=28.0, format="png"
+    )
+    flights = []
+    if photo_flights:
+        for k in range(photo_flights + REFERENCE_FLIGHTS):
+            settings = replace(base, seed=seed + 100 + k, photo=k >= REFERENCE_FLIGHTS)
+            flights.append((f"photo{k}", "", settings))
+    for k in range(hard_flights):
+        flights.append((f"hard{k}", "hard", replace(base, seed=seed + 200 + k).hard()))
+    return flights
+
+
 def _background_tables(
     root: Path,
     sign_map,
     detector: SignDetector,
     modes: list[str],
-    flights: int,
-    frames: int,
-    seed: int,
+    flights: list[tuple[str, str, SimSettings]],
 ) -> tuple[dict, dict]:
-    """(background -> mode -> summarized table, mode -> miss causes) over flights
-    with photographs behind.
-
-    Two flights of the same kind with the procedural background come first,
-    as the reference.
+    """(condition -> mode -> summarized table, mode -> miss causes) over the
+    ``condition_flights``; a condition is the label, else the frame's background.
     """
     tables: dict[str, dict[str, dict]] = {}
     causes: dict[str, dict] = {}
-    for k in range(flights + REFERENCE_FLIGHTS):
-        out = root / f"photo{k}"
-        settings = SimSettings(
-            frames=frames,
-            trajectory="climb-hover-depart",
-            distance_m=28.0,
-            seed=seed + 100 + k,
-            format="png",
-            photo=k >= REFERENCE_FLIGHTS,
-        )
+    for name, label, settings in flights:
+        out = root / name
+        frames = settings.frames
         simulate(sign_map, out, settings, progress=False)
         for gray, truth in _frames(out, frames):
-            background = truth.get("conditions", {}).get("background", "procedural")
+            background = label or truth.get("conditions", {}).get("background", "procedural")
             readable = decodable(gray, truth)
             for mode in modes:
                 tab = tables.setdefault(background, {}).setdefault(
@@ -290,7 +304,7 @@ def _background_tables(
                     background,
                     causes.setdefault(mode, {}),
                 )
-        print(f"background flight {k}: seed {seed + 100 + k}, {frames} frames", file=sys.stderr)
+        print(f"{name} flight: seed {settings.seed}, {frames} frames", file=sys.stderr)
     summaries = {
         bg: {mode: summarize(tab) for mode, tab in by_mode.items()}
         for bg, by_mode in sorted(tables.items())
@@ -342,9 +356,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--photo-flights", type=int, default=0, help="flights with photographs behind (default 0)"
     )
-    ap.add_argument("--photo-frames", type=int, default=10, help="frames per photo flight")
     ap.add_argument(
-        "--skip-main", action="store_true", help="only the photo flights (with --photo-flights)"
+        "--hard-flights",
+        type=int,
+        default=0,
+        help="flights with every real-pylon condition (SimSettings.hard()) (default 0)",
+    )
+    ap.add_argument(
+        "--photo-frames", type=int, default=10, help="frames per photo (and hard) flight"
+    )
+    ap.add_argument(
+        "--skip-main",
+        action="store_true",
+        help="only the photo and hard flights (with --photo-flights / --hard-flights)",
     )
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)
@@ -366,15 +390,12 @@ def main(argv: list[str] | None = None) -> int:
     photo_causes: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
-        if args.photo_flights:
+        flights = condition_flights(
+            args.photo_flights, args.hard_flights, args.photo_frames, args.seed
+        )
+        if flights:
             backgrounds, photo_causes = _background_tables(
-                root,
-                sign_map,
-                detectors["group"],
-                modes,
-                args.photo_flights,
-                args.photo_frames,
-                args.seed,
+                root, sign_map, detectors["group"], modes, flights
             )
         for k, (traj, dist, share) in enumerate(() if args.skip_main else FLIGHTS):
             n = max(1, round(total * share))
@@ -445,7 +466,7 @@ def main(argv: list[str] | None = None) -> int:
     if backgrounds:
         _print_backgrounds(backgrounds)
         for mode, by_condition in photo_causes.items():
-            _print_causes(f"photo flights, mode {mode}", by_condition)
+            _print_causes(f"photo and hard flights, mode {mode}", by_condition)
     if args.json:
         data = {"frames": n_frames, "seed": args.seed, "results": results}
         data["backgrounds"] = backgrounds
