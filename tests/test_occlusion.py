@@ -5,11 +5,11 @@ import json
 import cv2
 import numpy as np
 import pytest
-from signpose.frontend import occlusion
+from signpose.frontend import decoder, occlusion
 from signpose.frontend.decoder import REASONS, DecodeReason, decode_roi
 from signpose.frontend.homography import apply_homography
 from signpose.frontend.observations import FrameObservations, SignObservation
-from signpose.frontend.sign import slot_angle_rad
+from signpose.frontend.sign import PAPER_CODES, slot_angle_rad
 
 from signpose.io.observations import frame_from_dict, frame_to_json
 from signpose.sim.crops import render_crop
@@ -17,23 +17,46 @@ from signpose.sim.crops import render_crop
 BAR_GRAY = 70  # a steel member: darker than the sky, lighter than the print's black
 
 
-def _crop_with_bar_over_slot(code: str, slot: int, rng, sign_px: float = 90.0):
+def _crop_with_bar_over_slot(
+    code: str,
+    slot: int,
+    rng,
+    sign_px: float = 90.0,
+    radial_offset: float = 0.0,
+    width: float = 0.2,
+):
     """A clean crop with a wide dark bar laid tangentially over coded slot ``slot``.
 
-    The bar is 0.2 diameters wide (the slot is 0.16 radially) and runs past the
-    disc's rim on both sides, as a pylon member in front of the sign would.
+    The bar is ``width`` diameters wide (0.2: the slot is 0.16 radially), its
+    centre line ``radial_offset`` diameters outward of the slot's centre, and
+    runs past the disc's rim on both sides, as a pylon member in front of the
+    sign would.
     """
     crop = render_crop(code, rng, sign_px=sign_px, rotation_deg=25.0, background="plain")
     theta = slot_angle_rad(slot)
     radial = np.array([np.cos(theta), np.sin(theta)])
     tangential = np.array([np.sin(theta), -np.cos(theta)])
-    centre = 0.3 * radial  # slot centre, diameter units (the crop's sign is 1 m across)
+    centre = (0.3 + radial_offset) * radial  # diameter units (the crop's sign is 1 m across)
     ends = apply_homography(crop.crop_H_sign, np.stack([centre - tangential, centre + tangential]))
-    width_px = 0.2 * sign_px
+    width_px = width * sign_px
     image = crop.image.copy()
     p0, p1 = (tuple(int(round(v)) for v in p) for p in ends)
     cv2.line(image, p0, p1, BAR_GRAY, int(round(width_px)), cv2.LINE_AA)
     return crop, image
+
+
+def test_a_member_beside_a_black_slot_does_not_erase_it(monkeypatch):
+    """A member 0.08 diameters wide whose centre line runs 0.13 outward of black
+    slot 2's centre (the slot ends 0.08 out) covers none of the slot: slot 2
+    stays 0 (an erased slot 2 would leave 1010 and 1000 of the map). Erasing
+    every slot a band merely reaches refused it."""
+    crop, image = _crop_with_bar_over_slot(
+        "1010", 2, np.random.default_rng(4), radial_offset=0.13, width=0.08
+    )
+    res = decode_roi(image, PAPER_CODES)
+    assert res.code == "1010" and res.erased_slots == ()
+    monkeypatch.setattr(decoder, "_ERASE_REACH", 0.08)  # the slot's half side
+    assert decode_roi(image, PAPER_CODES).code is None
 
 
 def test_bar_over_a_white_slot_is_refused_when_another_map_code_fits():
