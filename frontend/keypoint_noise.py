@@ -10,11 +10,12 @@ its own ``KindNoise``; the variance is a sum of terms, each a constant times
 the square of one thing the decoder measured (``variance_terms``):
 
     sigma_a^2 = floor^2 + (size / minor)^2 + (noise_px * noise)^2
-              + (spread_px * [spread - 3 noise]+)^2 + (residual * rms)^2
+              + (spread_px * [spread - 3 noise]+ [nothing crosses])^2 + (residual * rms)^2
               + (disturbance * [disturbance_in - 5 noise]+ * minor)^2
               + (stray * [stray_k - 5 noise]+ * minor)^2
               + (inside * [1 - inside_k - 5 noise]+ * minor)^2
-              + (own_residual * own_k,a)^2 + crossed_px^2 [a line crosses the face]
+              + (own_residual * own_k,a)^2
+              + (crossed_px^2 + (crossed * minor)^2) [an occluder crosses the face]
 
 ``a`` is the image axis (u or v) and ``k`` the keypoint's own part:
 ``own_k,a`` is its measured centroid minus the homography's prediction along
@@ -26,7 +27,9 @@ image noise (``noise``, the black's high-pass noise over the contrast) is
 taken off the spread, the disturbance, the stray white and the inside
 deficit first ([x]+ = max(x, 0)): a minimum over noisy samples falls short
 of white by a few noise sigmas on a clean sign, and renderers and cameras
-differ in their noise while the centroids barely feel it.
+differ in their noise while the centroids barely feel it. The spread stands
+for uneven shading of the face (glare); with an occluder across the face it
+is the occluder's own gray and does not count.
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ TERMS: tuple[str, ...] = (
     "noise_px",
     "stray",
     "inside",
+    "crossed",
 )
 # Multiples of the noise taken off the spread and off the other shortfalls.
 _SPREAD_NOISE = 3.0
@@ -76,6 +80,8 @@ class KindNoise:
         stray: error as a fraction of the minor axis per unit of stray white
             beyond the noise outside the keypoint's own part.
         inside: the same per unit of the part's inside shortfall of white.
+        crossed: error as a fraction of the minor axis when an occluder
+            crosses the face (a band's edges pull the parts it leaves).
     """
 
     floor_px: float
@@ -88,6 +94,7 @@ class KindNoise:
     noise_px: float = 0.0
     stray: float = 0.0
     inside: float = 0.0
+    crossed: float = 0.0
 
     def coefficients(self) -> np.ndarray:
         """(len(TERMS),) the constants, in ``TERMS`` order."""
@@ -124,39 +131,42 @@ def kind_of(name: str) -> str:
 SIGMA_MODEL = SigmaModel(
     center=KindNoise(
         floor_px=0.0251,
-        size_px2=1.3e-06,
-        spread_px=4.29,
-        residual=0.000447,
+        size_px2=0.000367,
+        spread_px=4.3,
+        residual=3.24e-07,
         disturbance=0.0121,
-        own_residual=0.422,
-        crossed_px=8.39e-08,
-        noise_px=0.00217,
+        own_residual=0.419,
+        crossed_px=7.42e-05,
+        noise_px=0.00935,
         stray=0.0181,
         inside=0.0107,
+        crossed=6.29e-08,
     ),
     direction=KindNoise(
-        floor_px=0.0269,
-        size_px2=0.436,
+        floor_px=0.027,
+        size_px2=0.429,
         spread_px=1.95,
-        residual=0.304,
-        disturbance=0.028,
-        own_residual=0.0166,
-        crossed_px=0.378,
-        noise_px=0.0936,
-        stray=0.0439,
-        inside=0.0223,
+        residual=0.309,
+        disturbance=0.0278,
+        own_residual=0.0425,
+        crossed_px=0.376,
+        noise_px=0.0684,
+        stray=0.0437,
+        inside=0.0229,
+        crossed=2.06e-09,
     ),
     slot=KindNoise(
-        floor_px=0.0241,
-        size_px2=0.00989,
-        spread_px=2.59,
-        residual=0.00706,
-        disturbance=0.0121,
-        own_residual=0.287,
-        crossed_px=0.000508,
-        noise_px=0.042,
-        stray=0.0185,
-        inside=0.00815,
+        floor_px=0.0242,
+        size_px2=4.71e-08,
+        spread_px=2.57,
+        residual=0.113,
+        disturbance=0.0122,
+        own_residual=0.313,
+        crossed_px=0.000306,
+        noise_px=0.0106,
+        stray=0.0189,
+        inside=0.00811,
+        crossed=1.67e-06,
     ),
 )
 
@@ -351,15 +361,17 @@ def variance_terms(inputs: SigmaInputs, name: str) -> np.ndarray:
     head = [
         1.0,
         1.0 / minor**2,
-        max(inputs.spread - _SPREAD_NOISE * noise, 0.0) ** 2,
+        0.0 if inputs.crossed else max(inputs.spread - _SPREAD_NOISE * noise, 0.0) ** 2,
         rms**2,
         (max(inputs.disturbance - short, 0.0) * minor) ** 2,
     ]
+    crossed = 1.0 if inputs.crossed else 0.0
     tail = [
-        1.0 if inputs.crossed else 0.0,
+        crossed,
         noise**2,
         (stray * minor) ** 2,
         (inside * minor) ** 2,
+        crossed * minor**2,
     ]
     return np.array([head + [own[0] ** 2] + tail, head + [own[1] ** 2] + tail])
 
