@@ -543,6 +543,8 @@ def _hidden_samples(
     h, w = gray.shape
     inside = _inside(_project(image_H_sign, _OUTER_RING), w, h, 0.0)
     bands = occlusion.dark_bands(gray, image_H_sign, black, white, inside, _PART_CENTRES[:2])
+    # A bar in front lighter than the print (it brightens the black references).
+    bands += occlusion.off_black_bands(gray, image_H_sign, black, white, _SAMPLES[_S_BLACK])
     under = occlusion.crossed(bands, _SAMPLES, np.full(len(_SAMPLES), _SAMPLE_BAND_MARGIN))
     return frozenset(np.flatnonzero(under).tolist())
 
