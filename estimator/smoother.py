@@ -605,10 +605,10 @@ def _observed_and_signs(meas: Measurements) -> tuple[np.ndarray, np.ndarray]:
     observed[meas.frame] = True
     signs = np.zeros(meas.n_frames, np.int64)
     if len(meas.frame):
-        codes = np.array(meas.landmark_code)[meas.landmark]
-        pairs = {(int(f), c) for f, c in zip(meas.frame, codes, strict=True)}
-        for f, _ in pairs:
-            signs[f] += 1
+        _, code_of_landmark = np.unique(np.array(meas.landmark_code), return_inverse=True)
+        code = code_of_landmark.reshape(-1)[meas.landmark]
+        pairs = np.unique(meas.frame * (int(code.max()) + 1) + code)  # distinct (frame, code)
+        np.add.at(signs, pairs // (int(code.max()) + 1), 1)
     return observed, signs
 
 
