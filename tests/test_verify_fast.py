@@ -1,10 +1,12 @@
 """frontend.verify's fast path against a slow reference built from the decoder's own pieces.
 
 ``_reference_verify_sign`` is verify_sign as it was before it was made
-cheaper (commit 23ed9e8): the alignment with numpy scalar images, the
-decoder's ``_subpixel_centroids`` and ``_fill_deficit``, one projection per
-use. The fast path must give the same outcome and the same reading (code,
-reason, keypoints to 1e-9 px, sigmas, ellipse, homography, erased slots).
+cheaper (commit 23ed9e8; with the decoder's per-part measurements for the
+sigmas, ``keypoint_noise.measure_parts``, added as the fast path follows
+them since 9a5b26e): the alignment with numpy scalar images, the decoder's
+``_subpixel_centroids`` and ``_fill_deficit``, one projection per use. The
+fast path must give the same outcome and the same reading (code, reason,
+keypoints to 1e-9 px, sigmas, ellipse, homography, erased slots).
 scripts/bench_frontend.py --check-verify runs the same comparison on the
 bench's frames.
 """
