@@ -39,6 +39,8 @@ condition (flight or background; occluded or clear) and size bin
                   decoder's own limit: occlusion, blur, view)
     read_other    the region reads, but not as this sign where it is
 
+and, of all the misses, those whose true box reads (with the same retries:
+what a perfect cascade would have handed over, the detector's share),
 and the decoder's reasons for the refused regions are counted.
 
     .venv/bin/python scripts/eval_detector.py [--quick] [--photo-flights 8] [--hard-flights 4]
@@ -157,7 +159,14 @@ def miss_cause(
 
 
 def _empty_causes() -> dict:
-    return {"N": 0, "T": 0, **dict.fromkeys(CAUSES, 0), "geometry": {}, "reasons": {}}
+    return {
+        "N": 0,
+        "T": 0,
+        **dict.fromkeys(CAUSES, 0),
+        "readable": 0,
+        "geometry": {},
+        "reasons": {},
+    }
 
 
 def tally_causes(
@@ -180,6 +189,10 @@ def tally_causes(
             rois = detector.candidate_rois(gray)
         cause, geometry, reason = miss_cause(gray, s, detector, regions, counts, codes, rois)
         row[cause] += 1
+        # The detector's share: misses whose true box reads (with the same retries).
+        row["readable"] += (
+            detector.decode_box(gray, s["bbox_px"], math.inf, codes).code == s["code"]
+        )
         if geometry:
             row["geometry"][geometry] = row["geometry"].get(geometry, 0) + 1
         if reason:
@@ -191,6 +204,7 @@ def _print_causes(title: str, causes: dict) -> None:
     print(
         f"{'condition':>34} {'size px':>7} {'N':>5} {'found':>5} {'recall':>8} "
         + " ".join(f"{c:>12}" for c in CAUSES)
+        + f" {'true box reads':>14}"
     )
     for cond, by_bin in sorted(causes.items()):
         total = _empty_causes()
@@ -199,7 +213,7 @@ def _print_causes(title: str, causes: dict) -> None:
             ("all", total),
         ]:
             if b != "all":
-                for k in ("N", "T", *CAUSES):
+                for k in ("N", "T", *CAUSES, "readable"):
                     total[k] += row[k]
                 for k in ("geometry", "reasons"):
                     for name, n in row[k].items():
@@ -208,6 +222,7 @@ def _print_causes(title: str, causes: dict) -> None:
             print(
                 f"{cond:>34} {b:>7} {row['N']:5d} {row['T']:5d} {recall:7.2f}% "
                 + " ".join(f"{row[c]:12d}" for c in CAUSES)
+                + f" {row['readable']:14d}"
             )
         print(f"{'':>34} refused regions' crops: {dict(sorted(total['geometry'].items()))}")
         print(f"{'':>34} decoder reasons: {dict(sorted(total['reasons'].items()))}")
