@@ -178,13 +178,15 @@ def _frame_modes(det, aruco, scene, sign_map, repeat):
     return per_frame, passes, tallies, outcomes
 
 
-def _crop_times(scene, codes, check=None) -> dict:
+def _crop_times(scene, codes, check=None, other=None) -> dict:
     """Median CPU [ms] per crop: full decode on the true box, verification at the prediction.
 
     ``check``: ``_reference_check()``, to count the verifications whose outcome
-    or reading differs from the reference's (``check_differ``).
+    or reading differs from the reference's (``check_differ``). ``other``:
+    another ``verify_sign`` (``--ab-verify``), timed against this one.
     """
     full, ver = [], []
+    ab: dict[str, list[float]] = {"this": [], "other": []}
     outcomes = collections.Counter()
     for i, f in enumerate(scene["frames"]):
         truth = scene["boxes"][i]
@@ -207,7 +209,42 @@ def _crop_times(scene, codes, check=None) -> dict:
             if check is not None:
                 reference, differences = check
                 outcomes["check_differ"] += bool(differences(v, reference(f, h, p.code, codes)))
-    return {"full_decode_ms": _med(full), "verify_ms": _med(ver), "crops": len(full), **outcomes}
+            if other is not None:
+                _ab(
+                    ab,
+                    lambda p=p, f=f, h=h: verify_sign(f, h, p.code, codes),
+                    lambda p=p, f=f, h=h: other(f, h, p.code, codes),
+                )
+    out = {"full_decode_ms": _med(full), "verify_ms": _med(ver), "crops": len(full), **outcomes}
+    return out | _ab_medians(ab)
+
+
+def _ab(ab: dict, this, other, passes: int = 3) -> None:
+    """Append the CPU [ms] of ``this`` and ``other`` on one crop to ``ab``: each the
+    least of ``passes`` runs, the two run one after the other in alternating order."""
+    best = {"this": math.inf, "other": math.inf}
+    for r in range(passes):
+        for name in ("this", "other") if r % 2 else ("other", "this"):
+            ms, _ = _cpu_ms(this if name == "this" else other)
+            best[name] = min(best[name], ms)
+    for name, ms in best.items():
+        ab[name].append(ms)
+
+
+def _ab_medians(ab: dict) -> dict:
+    if not ab["this"]:
+        return {}
+    this, other = _med(ab["this"]), _med(ab["other"])
+    return {"ab_verify_ms": this, "ab_other_verify_ms": other, "ab_ratio": this / other}
+
+
+def _load_verify(path: Path):
+    """``verify_sign`` of another copy of frontend/verify.py (e.g. an earlier commit's)."""
+    spec = importlib.util.spec_from_file_location("verify_other", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["verify_other"] = mod
+    spec.loader.exec_module(mod)
+    return mod.verify_sign
 
 
 def _reference_check():
@@ -221,7 +258,7 @@ def _reference_check():
     return mod._reference_verify_sign, mod._differences
 
 
-def _scene_crop_times(n: int, check=None) -> dict:
+def _scene_crop_times(n: int, check=None, other=None) -> dict:
     """The same on crops of scripts/independent_scene.py (mixed conditions)."""
     spec = importlib.util.spec_from_file_location(
         "independent_scene", Path(__file__).with_name("independent_scene.py")
@@ -231,6 +268,7 @@ def _scene_crop_times(n: int, check=None) -> dict:
     spec.loader.exec_module(mod)
     rng = np.random.default_rng(BENCH_SEED)
     full, ver = [], []
+    ab: dict[str, list[float]] = {"this": [], "other": []}
     outcomes = collections.Counter()
     codes = [c for c in mod.PAPER_CODES if c.count("1") >= 1]
     for k in range(n):
@@ -250,7 +288,15 @@ def _scene_crop_times(n: int, check=None) -> dict:
         outcomes[v.outcome.value] += 1
         if check is not None:
             outcomes["check_differ"] += bool(check[1](v, check[0](crop.image, h, code)))
-    return {"full_decode_ms": _med(full), "verify_ms": _med(ver), "crops": n, **outcomes}
+        if other is not None:
+            im = crop.image
+            _ab(
+                ab,
+                lambda im=im, h=h, c=code: verify_sign(im, h, c),
+                lambda im=im, h=h, c=code: other(im, h, c),
+            )
+    out = {"full_decode_ms": _med(full), "verify_ms": _med(ver), "crops": n, **outcomes}
+    return out | _ab_medians(ab)
 
 
 def _med(x) -> float:
@@ -302,6 +348,15 @@ def _print_scene(name: str, res: dict, n: int) -> None:
     )
     if "check_differ" in c:
         print(f"  verifications differing from the reference: {c['check_differ']} of {c['crops']}")
+    if "ab_ratio" in c:
+        print(_ab_line(c))
+
+
+def _ab_line(c: dict) -> str:
+    return (
+        f"  verification per crop, least of 3 interleaved runs: {c['ab_verify_ms']:.3f} ms,"
+        f" --ab-verify's {c['ab_other_verify_ms']:.3f} ms ({c['ab_ratio']:.2f}x)"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -318,8 +373,16 @@ def main(argv: list[str] | None = None) -> int:
         help="also run the reference verification of tests/test_verify_fast.py on every"
         " timed crop and count the outcomes or readings that differ (check_differ)",
     )
+    ap.add_argument(
+        "--ab-verify",
+        type=Path,
+        default=None,
+        help="another copy of frontend/verify.py (e.g. git show REV:frontend/verify.py > v.py):"
+        " its verify_sign timed against this one on every crop, interleaved",
+    )
     args = ap.parse_args(argv)
     check = _reference_check() if args.check_verify else None
+    other = _load_verify(args.ab_verify) if args.ab_verify else None
     cv2.setNumThreads(1)
     n = args.frames or (8 if args.quick else 30)
     sign_map = load_map(bundled_map_path())
@@ -338,21 +401,25 @@ def main(argv: list[str] | None = None) -> int:
             "modes": _ratios(per_frame, passes),
             "found": {m: dict(t) for m, t in tallies.items()},
             "verifications": dict(outcomes),
-            "crops": _crop_times(scene, codes, check),
+            "crops": _crop_times(scene, codes, check, other),
         }
         for t in res["found"].values():
             for k in ("found", "found_ge18", "wrong", "full_frames", "signs"):
                 t.setdefault(k, 0)
         results["scenes"][name] = res
         _print_scene(name, res, n)
-    sc = _scene_crop_times(SCENE_CROPS if not args.quick else 20, check)
+    sc = _scene_crop_times(SCENE_CROPS if not args.quick else 20, check, other)
     results["independent_crops"] = sc
     print(
         f"independent_scene crops ({sc['crops']}, mixed): full decode {sc['full_decode_ms']:.3f}"
         f" ms, verification {sc['verify_ms']:.3f} ms"
         f" ({sc['verify_ms'] / sc['full_decode_ms']:.2f}x); outcomes "
-        + ", ".join(f"{k} {v}" for k, v in sc.items() if k not in ("crops",) and "ms" not in k)
+        + ", ".join(
+            f"{k} {v}" for k, v in sc.items() if k != "crops" and "ms" not in k and "ab_" not in k
+        )
     )
+    if "ab_ratio" in sc:
+        print(_ab_line(sc))
     if "sim" in results["scenes"]:
         results |= _table5_keys(results["scenes"]["sim"])
     if args.json:
