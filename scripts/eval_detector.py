@@ -381,6 +381,11 @@ def main(argv: list[str] | None = None) -> int:
         "--photo-frames", type=int, default=10, help="frames per photo (and hard) flight"
     )
     ap.add_argument(
+        "--no-retries",
+        action="store_true",
+        help="the detector without its crop retries (DetectorSettings.retry_margins = ())",
+    )
+    ap.add_argument(
         "--skip-main",
         action="store_true",
         help="only the photo and hard flights (with --photo-flights / --hard-flights)",
@@ -390,7 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     total = args.frames or (30 if args.quick else 300)
     modes = [m for m in args.modes.split(",") if m]
     sign_map = load_map(bundled_map_path())
-    base = DetectorSettings()
+    base = DetectorSettings(retry_margins=()) if args.no_retries else DetectorSettings()
     detectors = {m: SignDetector(args.cascade, replace(base, merge=m)) for m in ("paper", "group")}
     tables = {
         (mode, merge): {f"{lo}-{hi}": _empty() for lo, hi in BINS}

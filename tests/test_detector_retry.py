@@ -154,3 +154,20 @@ def test_eval_detector_names_the_cause_of_each_miss():
     assert ev.miss_cause(blank, sign, plain, np.array([true_box]), counts, None, None)[0] == (
         "refused_sign"
     )
+
+
+def test_eval_detector_condition_flights_put_the_references_first_and_the_hard_ones_last():
+    ev = _eval_detector()
+    flights = ev.condition_flights(photo_flights=2, hard_flights=1, frames=3, seed=10)
+    assert [(name, label) for name, label, _ in flights] == [
+        ("photo0", ""),
+        ("photo1", ""),
+        ("photo2", ""),
+        ("photo3", ""),
+        ("hard0", "hard"),
+    ]
+    photo = [s.photo for _, _, s in flights]
+    assert photo == [False, False, True, True, True]  # hard() has photographs too
+    assert [s.seed for _, _, s in flights] == [110, 111, 112, 113, 210]
+    assert flights[-1][2].members > 0 and all(s.frames == 3 for _, _, s in flights)
+    assert ev.condition_flights(0, 0, 3, 10) == []
