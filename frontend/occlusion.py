@@ -568,6 +568,9 @@ _BAND_RADIUS = 0.45
 _N_BAND = 96
 _BAND_ANGLES = np.linspace(0.0, 2 * math.pi, _N_BAND, endpoint=False)
 _BAND_POINTS = _BAND_RADIUS * np.stack([np.cos(_BAND_ANGLES), np.sin(_BAND_ANGLES)], axis=1)
+# Least distance [px] of the rim band from the rim for its own median to be
+# the face's black (psf, JPEG and blur bring the background closer).
+_BLEED_PX = 2.5
 # Least departure (white fraction) of an object's level from the print's black,
 # and that many robust noise sigmas at least.
 _OFF_BLACK_MIN = 0.03
@@ -612,9 +615,16 @@ def off_black_bands(
     if len(targets) == 0:
         return []
     contrast = max(white - black, 1e-6)
-    frac = (_sample(gray, _project(image_H_sign, _BAND_POINTS)) - black) / contrast
-    # Levels against the face's black (not the band's median: on a small
-    # sign the background bleeds into the whole band).
+    uv = _project(image_H_sign, _BAND_POINTS)
+    frac = (_sample(gray, uv) - black) / contrast
+    # Levels against the band's own median where the background cannot bleed
+    # into it (the face's black there, the reading's is a low quantile);
+    # against the reading's black on a small sign, where it does.
+    rim_uv = _project(image_H_sign, _BAND_POINTS * (0.5 / _BAND_RADIUS))
+    if float(np.hypot(*(rim_uv - uv).T).min()) >= _BLEED_PX:
+        base = float(np.median(frac))
+        frac = frac - base
+        black = black + base * contrast
     # The noise from neighbouring samples' differences (an arc barely moves
     # them), and runs found on a 3-sample circular mean.
     noise = 1.4826 * float(np.median(np.abs(frac - np.roll(frac, 1)))) / math.sqrt(2.0)
