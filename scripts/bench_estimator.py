@@ -3,8 +3,8 @@
 
 Prints (and writes to ``--json``):
 
-* per-frame PnP (the initial values), batch Levenberg-Marquardt without and
-  with the marginal sigmas, in ms per frame;
+* per-frame PnP (the initial values), the batch solve (Gauss-Newton, its last
+  net giving the sigmas) without and with the marginal sigmas, in ms per frame;
 * the marginals two ways on the same linearised graph (its first
   ``--marginal-frames`` frames): one backward pass (``estimator.marginals``)
   against one Bayes-tree ``marginalCovariance`` per pose, their time ratio and
@@ -278,7 +278,7 @@ def _batch(out: dict, meas, gt, init, camera, settings, default, n: int):
         batch_sigmas_ms_per_frame=1e3 * rs.sigma_seconds / n,
     )
     print(
-        f"batch LM: {out['batch_ms_per_frame']:.3f} ms/frame (CPU "
+        f"batch: {out['batch_ms_per_frame']:.3f} ms/frame (CPU "
         f"{out['batch_cpu_ms_per_frame']:.3f}; build {out['batch_build_ms_per_frame']:.3f}, "
         f"{r.iterations} iterations); with sigmas {out['batch_with_sigmas_ms_per_frame']:.3f} "
         f"ms/frame (CPU {out['batch_with_sigmas_cpu_ms_per_frame']:.3f}; marginals "
