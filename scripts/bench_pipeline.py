@@ -53,7 +53,7 @@ STAGES = (
     ("detect", "detect (cascade + merge)"),
     ("decode", "decode signs"),
     ("track", "track (per-frame PnP)"),
-    ("per_frame", "per-frame methods (as frames come)"),
+    ("per_frame", "per-frame methods (overlapped)"),
     ("estimate", "estimate (all methods)"),
     ("outputs", "outputs (files, plots, MCAP)"),
 )

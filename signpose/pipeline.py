@@ -23,6 +23,11 @@ and names the frames in ``problems`` (report.json: ``missing_frames``).
 ``run`` = ``observe`` + ``estimator.estimate.estimate_trajectories`` + the
 estimator's files + plots + ``result.mcap`` (+ ``compare`` against a ground
 truth), with the time split by stage (the paper's Table 5) in ``report.json``.
+The stages overlap where the data allow (``RunSettings.overlap``): the
+per-frame methods run on each frame as it is merged in flight order (taking
+the tracker's PnP call where its inputs are the chain's), while later chunks
+are still observed; the plots are drawn in ``PLOT_PROCESSES`` processes while
+the main one writes the other files. The files are the same bytes either way.
 A run's folder is one unit through ``run.json``: over an earlier run it is
 ``running`` from before the first output (a killed or failed run leaves it so:
 the folder then mixes two runs), and ``complete`` with the names of this run's
@@ -123,8 +128,10 @@ OBSERVATIONS_NAME = "observations.jsonl"
 REPORT_NAME = "report.json"
 RESULT_MCAP_NAME = "result.mcap"
 RESULT_BAG_NAME = "result_bag"
-# The stages of the paper's Table 5, plus the ones signpose adds.
-STAGES = ("decode_video", "detect", "decode", "track", "estimate", "outputs")
+# The stages of the paper's Table 5, plus the ones signpose adds ("per_frame": the
+# per-frame methods run as frames are merged, overlapping observing; "estimate" then
+# holds the rest of the estimation).
+STAGES = ("decode_video", "detect", "decode", "track", "per_frame", "estimate", "outputs")
 # Signs nearer the camera than this [m] are not predicted (behind it or at the lens).
 MIN_PREDICTED_DEPTH_M = 0.5
 # A reading within this many predicted diameters of a tracked sign's predicted
