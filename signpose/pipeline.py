@@ -27,7 +27,8 @@ The stages overlap where the data allow (``RunSettings.overlap``): the
 per-frame methods run on each frame as it is merged in flight order (taking
 the tracker's PnP call where its inputs are the chain's), while later chunks
 are still observed; the plots are drawn in ``PLOT_PROCESSES`` processes while
-the main one writes the other files. The files are the same bytes either way.
+the main one writes the other files (unless observing is inline: ``workers``
+1 starts no process). The files are the same bytes either way.
 A run's folder is one unit through ``run.json``: over an earlier run it is
 ``running`` from before the first output (a killed or failed run leaves it so:
 the folder then mixes two runs), and ``complete`` with the names of this run's
@@ -255,9 +256,10 @@ class RunSettings:
         fusion: the fusion's geometry (``--antenna-offset``, ``--imu-to-camera``)
             and weights; None: the defaults. Its clock is the telemetry's.
         overlap: run the per-frame methods as the frames arrive (while later
-            chunks are observed) and draw the plots in ``PLOT_PROCESSES``
-            processes while the main one writes the other files; False: one
-            stage after the other. The files are the same bytes either way.
+            chunks are observed) and, unless observing is inline (``workers``
+            1), draw the plots in ``PLOT_PROCESSES`` processes while the main
+            one writes the other files; False: one stage after the other. The
+            files are the same bytes either way.
     """
 
     observe: ObserveSettings = field(default_factory=ObserveSettings)
@@ -1923,8 +1925,10 @@ class PlotProcesses:
 def _plotters(s: RunSettings) -> Iterator[PlotProcesses | None]:
     """The run's plot processes (None: the plots are drawn in this process)."""
     plotters = None
-    # A daemonic process (a pool's worker) may not start processes of its own.
-    if s.overlap and s.plots and not multiprocessing.current_process().daemon:
+    # Only where observing may start processes too (not inline, not in a pool's daemonic
+    # worker): a script without a __main__ guard runs again in every process started
+    # (forkserver), and with --workers 1 it has never needed one.
+    if s.overlap and s.plots and _worker_count(s.observe) > 1:
         try:
             plotters = PlotProcesses(PLOT_PROCESSES)
         except OSError as exc:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import simulate_tiny, truth_detector
 from signpose.estimator import perframe
 from signpose.estimator.perframe import PerFrameRun, run_per_frame
 from signpose.maps.loader import bundled_map_path, load_map
@@ -178,3 +179,24 @@ def test_plot_processes_give_files_in_order_and_a_dead_ones_plots_are_drawn_here
             plotters.finish()
     finally:
         plotters.close(kill=True)
+
+
+def test_an_inline_run_starts_no_plot_process(monkeypatch, tmp_path):
+    """--workers 1 never needed a __main__ guard: no process is started for the plots."""
+
+    def refused(*args, **kw):
+        raise AssertionError("a plot process was started")
+
+    monkeypatch.setattr(pipeline, "PlotProcesses", refused)
+    flight = simulate_tiny(tmp_path / "flight")
+    result = pipeline.run(
+        flight.frames_path,
+        load_map(bundled_map_path()),
+        tmp_path / "run",
+        camera=flight.camera,
+        settings=pipeline.RunSettings(observe=pipeline.ObserveSettings(workers=1), mcap=False),
+        progress=False,
+        detector=truth_detector(flight),
+    )
+    assert {"views.png", "trajectory_3d.png"} <= {p.name for p in result.files}
+    assert "per_frame" in result.timing_s  # the per-frame methods still ran as frames came
