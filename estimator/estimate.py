@@ -28,6 +28,7 @@ from signpose.estimator.fusion import (
     on_smoother,
     pose_statuses,
 )
+from signpose.estimator.noise_scale import pixel_noise_scale, scaled_frames, scaled_pose
 from signpose.estimator.perframe import (
     PER_FRAME_METHODS,
     FramePose,
@@ -118,6 +119,9 @@ class EstimatorSettings:
             worst-axis MAE was lower than GNC's on 4 of 5 flights (0.039 vs
             0.041 m on seed 0) and it is cheaper (one LM solve, not GNC's
             sequence of them).
+        scale_pixel_noise: scale every keypoint sigma up by the flight's own
+            a posteriori noise factor from the PnP residuals
+            (``estimator.noise_scale``) before the statuses and the smoother.
     """
 
     methods: tuple[str, ...] = METHODS
@@ -131,6 +135,7 @@ class EstimatorSettings:
     tune_motion: bool = True
     tuning: TuningSettings = field(default_factory=TuningSettings)
     final_kernel: str = TUKEY
+    scale_pixel_noise: bool = True
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -234,6 +239,8 @@ class EstimateResult:
         motion: the motion prior chosen from the flight, or None.
         fusion: the GNSS/IMU fusion (clock offset, GNSS outliers, counts), or
             None without telemetry.
+        pixel_noise_scale: the factor (>= 1) every keypoint sigma was scaled
+            by (``estimator.noise_scale``; 1.0: none).
     """
 
     methods: dict[str, MethodEstimate]
@@ -244,6 +251,7 @@ class EstimateResult:
     timing_s: dict[str, float]
     motion: MotionChoice | None = None
     fusion: FusionResult | None = None
+    pixel_noise_scale: float = 1.0
 
 
 # A per-frame pose spends six of its residuals' degrees of freedom on itself.
@@ -762,6 +770,20 @@ def _per_frame_done(
     return {name: list(done.poses[name]) for name in done.methods}
 
 
+def _noise_scaled(
+    frames: Sequence[FrameObservations],
+    per_frame: dict[str, list[FramePose]],
+    s: EstimatorSettings,
+) -> tuple[dict[str, list[FramePose]], float, Sequence[FrameObservations]]:
+    """The per-frame poses and the frames with the flight's pixel noise scale
+    (``estimator.noise_scale``) applied, and the scale."""
+    if not s.scale_pixel_noise or "pnp" not in per_frame:
+        return per_frame, 1.0, frames
+    scale = pixel_noise_scale(per_frame["pnp"])
+    poses = {k: [scaled_pose(p, scale) for p in v] for k, v in per_frame.items()}
+    return poses, scale, scaled_frames(frames, scale)
+
+
 def estimate_trajectories(
     frames: Sequence[FrameObservations],
     sign_map: SignMap,
@@ -806,6 +828,7 @@ def estimate_trajectories(
     per_frame = _per_frame_methods(
         frames, sign_map, camera, s, progress, solved_pnp, timing, per_frame_done
     )
+    per_frame, scale, scaled = _noise_scaled(frames, per_frame, s)
     for name, poses in per_frame.items():
         if name in wanted:
             methods[name] = _from_frame_poses(name, stamps, poses, s.status)
@@ -813,19 +836,16 @@ def estimate_trajectories(
     mis: tuple[Misdecode, ...] = ()
     rejected_obs: tuple[Rejection, ...] = ()
     motion = fused = None
-    if "smoothed" in wanted:
-        run = _smoothed(frames, sign_map, camera, s, per_frame, progress, telemetry, fusion)
+    if "smoothed" in wanted:  # with the sigmas the PnP residuals support
+        run = _smoothed(scaled, sign_map, camera, s, per_frame, progress, telemetry, fusion)
         methods.update(run.methods)
         timing.update(run.timing_s)
         down, mis, rejected_obs = run.downweighted, run.misdecoded, run.rejected
         motion, fused = run.motion, run.fusion
     if "smoothed" in methods:
         check_orientations(frames, sign_map, camera, methods["smoothed"])
-    rejected = ()
-    if "baseline" in per_frame:
-        rejected = tuple(
-            (p.frame, p.reason) for p in per_frame["baseline"] if p.world_T_cam is None
-        )
+    base = per_frame.get("baseline", ())
+    rejected = tuple((p.frame, p.reason) for p in base if p.world_T_cam is None)
     return EstimateResult(
         methods=methods,
         frames=np.array([f.frame for f in frames], dtype=np.int64),
@@ -841,4 +861,5 @@ def estimate_trajectories(
         timing_s=timing,
         motion=motion,
         fusion=fused,
+        pixel_noise_scale=scale,
     )

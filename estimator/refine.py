@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from signpose.estimator.camera import CameraModel
 from signpose.estimator.estimate import EstimateResult, EstimatorSettings, estimate_trajectories
+from signpose.estimator.noise_scale import scaled_frames
 from signpose.estimator.projection import pixels_and_jacobians
 from signpose.estimator.smoother import (
     Measurements,
@@ -210,6 +211,7 @@ def refine_flight(
     s = result.settings
     if result.motion is not None:  # the motion prior chosen from the flight
         s = replace(s, smoother=result.motion.settings)
+    frames = scaled_frames(frames, result.pixel_noise_scale)  # the sigmas the smoother had
     try:
         return _solve_flights([frames], [smoothed.world_T_cam], sign_map, camera, s)
     except RuntimeError as e:

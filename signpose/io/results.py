@@ -215,6 +215,7 @@ def report_dict(result: EstimateResult) -> dict:
             "timing_s": result.timing_s,
             "outliers": o,
             "motion_prior": result.motion.to_dict() if result.motion is not None else None,
+            "pixel_noise_scale": result.pixel_noise_scale,
         }
     )
 
