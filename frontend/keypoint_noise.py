@@ -34,6 +34,7 @@ is the occluder's own gray and does not count.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -240,6 +241,7 @@ _RING_ANGLES = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
 _BLACK_RINGS = [
     r * np.stack([np.cos(_RING_ANGLES), np.sin(_RING_ANGLES)], axis=1) for r in (0.148, 0.46)
 ]
+_RINGS_XY = np.concatenate(_BLACK_RINGS)
 _EDGE_T = np.linspace(0.1, 0.9, 5)
 # Where the stray samples lie outside a part: beyond the decoder's centroid
 # window (1.5 px), at most this far in diameters (the gaps between parts).
@@ -278,38 +280,45 @@ def _sample(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
 def _noise(gray: np.ndarray, image_H_sign: np.ndarray, contrast: float) -> float:
     """Robust noise of the black rings over ``contrast``: second differences
     along each ring cancel smooth shading (glare, vignetting)."""
-    d2 = []
-    for ring in _BLACK_RINGS:
-        g = _sample(gray, _project(image_H_sign, ring))
-        d = np.roll(g, 1) - 2 * g + np.roll(g, -1)
-        d2.append(d[np.isfinite(d)])
-    d = np.concatenate(d2)
+    g = _sample(gray, _project(image_H_sign, _RINGS_XY)).reshape(len(_BLACK_RINGS), -1)
+    d = np.roll(g, 1, axis=1) - 2 * g + np.roll(g, -1, axis=1)
+    d = d[np.isfinite(d)]
     if len(d) < 16:
         return float("nan")
     return float(1.4826 * np.median(np.abs(d)) / math.sqrt(6.0) / max(contrast, 1e-6))
 
 
-def _stray(gray, image_H_sign, quads, black, white) -> np.ndarray:
-    """(P,) mean white fraction on each part's outline grown by ``_STRAY_PX``."""
-    steps = _project(image_H_sign, np.array([[0.0, 0.0], [0.01, 0.0], [0.0, 0.01]]))
-    scale = math.sqrt(abs(np.linalg.det(steps[1:] - steps[0]))) / 0.01  # px per diameter
-    grow = min(_STRAY_PX / max(scale, 1e-9), _STRAY_MAX)
-    out = []
+@functools.cache
+def _outline_geometry(quads_key: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Each part's outline samples and outward unit normals in the sign plane,
+    (P * 4 * len(_EDGE_T), 2) each, for ``quads`` flattened as ``quads_key``."""
+    quads = np.array(quads_key).reshape(-1, 4, 2)
+    base, normals = [], []
     for q in quads:
         c = q.mean(axis=0)
-        pts = []
         for i in range(4):
             a, b = q[i], q[(i + 1) % 4]
             n = np.array([b[1] - a[1], a[0] - b[0]]) / max(float(np.hypot(*(b - a))), 1e-12)
             if n @ ((a + b) / 2 - c) < 0:
                 n = -n
-            pts.append(a + np.outer(_EDGE_T, b - a) + grow * n)
-        frac = (_sample(gray, _project(image_H_sign, np.concatenate(pts))) - black) / max(
-            white - black, 1e-6
-        )
-        frac = frac[np.isfinite(frac)]
-        out.append(float(np.clip(frac, 0.0, 1.0).mean()) if len(frac) else 0.0)
-    return np.array(out)
+            base.append(a + np.outer(_EDGE_T, b - a))
+            normals.append(np.tile(n, (len(_EDGE_T), 1)))
+    return np.concatenate(base), np.concatenate(normals)
+
+
+def _stray(gray, image_H_sign, quads, black, white) -> np.ndarray:
+    """(P,) mean white fraction on each part's outline grown by ``_STRAY_PX``
+    (one projection and one sampling for all parts)."""
+    steps = _project(image_H_sign, np.array([[0.0, 0.0], [0.01, 0.0], [0.0, 0.01]]))
+    scale = math.sqrt(abs(np.linalg.det(steps[1:] - steps[0]))) / 0.01  # px per diameter
+    grow = min(_STRAY_PX / max(scale, 1e-9), _STRAY_MAX)
+    base, normals = _outline_geometry(tuple(np.asarray(quads, dtype=float).ravel().tolist()))
+    g = _sample(gray, _project(image_H_sign, base + grow * normals))
+    frac = np.clip((g - black) / max(white - black, 1e-6), 0.0, 1.0).reshape(len(quads), -1)
+    ok = np.isfinite(frac)
+    count = ok.sum(axis=1)
+    total = np.where(ok, frac, 0.0).sum(axis=1)
+    return np.where(count > 0, total / np.maximum(count, 1), 0.0)
 
 
 def measure_parts(
