@@ -222,6 +222,12 @@ class DetectorSettings:
             their window count: the sliding window's smallest (24 px)
             windows fit a sign near that size only a few times, and such
             crops are cheap to decode (paper mode's 18-30 px signs).
+        retry_max_regions: at most this many regions of a frame are retried,
+            those most windows agree on first: a frame full of sign-like
+            texture (a photograph of galaxies: 200 refused regions) does not
+            pay for two more decodes of each (on eval_detector's flights at
+            most 12 in a frame (a blurred orbit frame), 10 on the photo
+            flights, 65-80 in front of the galaxies).
         decode: run the decoder (False: return raw merged regions, for tests).
     """
 
@@ -252,6 +258,7 @@ class DetectorSettings:
     retry_thresholds: tuple[str, ...] = ("mean", "high", "adaptive")
     retry_min_windows: int = 20
     retry_small_px: float = 28.0
+    retry_max_regions: int = 12
     decode: bool = True
 
 
@@ -731,16 +738,56 @@ class SignDetector:
                 for (x, y, w, h), n in zip(regions, counts, strict=True)
             )
             return raw, 0
-        found: list[SignObservation] = []
-        undecoded = 0
-        for (x, y, w, h), n in zip(regions, counts, strict=True):
-            box = (float(x), float(y), float(w), float(h))
-            res = self._decode_box(gray, box, n, codes, retry)
-            if res.code is None:
-                undecoded += 1
-                continue
-            found.append(_observation(res, box, n))
-        return one_per_sign(found), undecoded
+        boxes = [(float(x), float(y), float(w), float(h)) for x, y, w, h in regions]
+        results = [decode_region(gray, box, codes) for box in boxes]
+        if retry:
+            results = self._retried(gray, boxes, counts, results, codes)
+        found = [
+            _observation(res, box, n)
+            for res, box, n in zip(results, boxes, counts, strict=True)
+            if res.ok
+        ]
+        return one_per_sign(found), sum(not res.ok for res in results)
+
+    def _retried(
+        self,
+        gray: np.ndarray,
+        boxes: list[tuple[float, float, float, float]],
+        counts: np.ndarray,
+        results: list[DecodeResult],
+        codes: tuple[str, ...] | None,
+    ) -> list[DecodeResult]:
+        """``results`` with the refused regions read again (``_retry``): the
+        strongest (most windows) first, at most ``retry_max_regions`` of them."""
+        wanted = [i for i, r in enumerate(results) if self._retryable(r, boxes[i], counts[i])]
+        wanted.sort(key=lambda i: (-float(counts[i]), i))
+        out = list(results)
+        for i in wanted[: self.settings.retry_max_regions]:
+            out[i] = self._retry(gray, boxes[i], codes, results[i])
+        return out
+
+    def _retryable(
+        self, res: DecodeResult, box: tuple[float, float, float, float], n_windows: float
+    ) -> bool:
+        """Whether a refused region is worth another crop (see ``retry_min_windows``)."""
+        s = self.settings
+        if res.ok or res.reason in NOT_RETRIED:
+            return False
+        return n_windows >= s.retry_min_windows or max(box[2], box[3]) <= s.retry_small_px
+
+    def _retry(
+        self,
+        gray: np.ndarray,
+        box: tuple[float, float, float, float],
+        codes: tuple[str, ...] | None,
+        res: DecodeResult,
+    ) -> DecodeResult:
+        """The first reading with the ``retry_margins`` crops in turn, else ``res``."""
+        for settings in self._retry_settings:
+            again = decode_region(gray, box, codes, settings)
+            if again.ok:
+                return again
+        return res
 
     def decode_box(
         self,
@@ -762,27 +809,10 @@ class SignDetector:
             when none reads, the default crop's refusal.
         """
         codes = tuple(codes) if codes is not None else None
-        return self._decode_box(_as_gray(gray), box, n_windows, codes)
-
-    def _decode_box(
-        self,
-        gray: np.ndarray,
-        box: tuple[float, float, float, float],
-        n_windows: float,
-        codes: tuple[str, ...] | None,
-        retry: bool = True,
-    ) -> DecodeResult:
+        gray = _as_gray(gray)
+        box = tuple(float(v) for v in box)
         res = decode_region(gray, box, codes)
-        if not retry or res.ok or res.reason in NOT_RETRIED:
-            return res
-        s = self.settings
-        if n_windows < s.retry_min_windows and max(box[2], box[3]) > s.retry_small_px:
-            return res
-        for settings in self._retry_settings:
-            again = decode_region(gray, box, codes, settings)
-            if again.ok:
-                return again
-        return res
+        return self._retry(gray, box, codes, res) if self._retryable(res, box, n_windows) else res
 
     # -- public ------------------------------------------------------------------
 

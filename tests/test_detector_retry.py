@@ -171,3 +171,23 @@ def test_eval_detector_condition_flights_put_the_references_first_and_the_hard_o
     assert [s.seed for _, _, s in flights] == [110, 111, 112, 113, 210]
     assert flights[-1][2].members > 0 and all(s.frames == 3 for _, _, s in flights)
     assert ev.condition_flights(0, 0, 3, 10) == []
+
+
+def test_a_frame_retries_at_most_retry_max_regions_regions_the_strongest_first(monkeypatch):
+    """A frame full of sign-like texture does not pay two more decodes per region."""
+    calls = []
+
+    def refusing(gray, box, codes=None, settings=None):
+        calls.append((box, settings))
+        return DecodeResult(code=None, reason=DecodeReason.NO_LOCATION)
+
+    monkeypatch.setattr(detector_module, "decode_region", refusing)
+    frame = np.zeros((100, 400), np.uint8)
+    regions = np.array([[10.0 * i, 10.0, 20.0, 20.0] for i in range(8)])  # small: retryable
+    counts = np.array([3, 9, 1, 7, 2, 8, 5, 4])
+    det = SignDetector(settings=DetectorSettings(retry_max_regions=3))
+    assert det._decode(frame, regions, counts, None) == ((), 8)
+    retried = [box[0] for box, settings in calls if settings is not None]
+    n_margins = len(DetectorSettings().retry_margins)
+    # The three with most windows (9, 8, 7: regions 1, 5, 3), each with every margin.
+    assert retried == [10.0] * n_margins + [50.0] * n_margins + [30.0] * n_margins
