@@ -41,9 +41,11 @@ Then, beyond the paper:
   that does not pass returns no code and a reason; one wrong code costs far
   more than one missed frame.
 * occlusion (``frontend.occlusion``): a coded slot is read as 1, 0 or erased
-  (gray levels neither clearly white nor the disc's black, or a dark band in
-  front of the face crossing it). A code is accepted only when exactly one
-  code of ``codes`` fits the slots that are not erased; the result carries
+  (gray levels neither clearly white nor the disc's black, or a band in front
+  of the face over the slot's centre: dark beyond the rim, or off the print's
+  black on the rim band, ``occlusion.off_black_bands``). A code is accepted
+  only when exactly one code of ``codes`` fits the slots that are not
+  erased; the result carries
   ``erased_slots`` and has no keypoints of covered parts. Otherwise the
   reading is refused (``occluded``). White on the face that the read code
   does not explain is refused too (``inconsistent``).
@@ -1428,6 +1430,12 @@ def _occlusion(
     # a thin line across it): their centroids carry that.
     kept = [m for p, m in zip(white, inside_white.tolist(), strict=True) if p not in covered]
     disturbance = float(np.clip(1.0 - min(kept), 0.0, 1.0)) if kept else 0.0
+    # Tried and dropped: keeping a location or directional rectangle that a
+    # band in front reaches while it shows white throughout (and its white
+    # area whole). 0.5-3 points more decoded in every condition of the
+    # independent scenes and no wrong code, but a bar beside the rectangle,
+    # inside its centroid window, moved its centroid up to 3 px on a 90 px
+    # sign (and, through the refit, others by 8 sigma).
     covered |= {p for p in white if front_hits[p]}
     for k in range(1, N_BITS + 1):
         if pattern[k - 1] == "0" and band_hits[1 + k]:
