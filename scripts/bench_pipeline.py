@@ -125,6 +125,11 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-tracking", action="store_true", help="full-frame detection every frame")
     p.add_argument("--no-sigmas", action="store_true", help="skip the smoother's marginal sigmas")
     p.add_argument(
+        "--no-overlap",
+        action="store_true",
+        help="one stage after another (RunSettings.overlap=False; the same files)",
+    )
+    p.add_argument(
         "--scenes",
         nargs="+",
         choices=("sim", "independent"),
@@ -192,6 +197,7 @@ def _json_data(
         "sigmas": not args.no_sigmas,
         "estimator_timing_s": est,
         "plots": not args.no_plots,
+        "overlap": not args.no_overlap,
         "cpu_count": os.cpu_count(),
         "python": platform.python_version(),
     }
@@ -204,6 +210,7 @@ def _timed_run(args, scene: str, workers: int, flight) -> tuple[RunResult, float
         observe=ObserveSettings(tracking=not args.no_tracking, workers=workers),
         estimator=EstimatorSettings(smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)),
         plots=not args.no_plots,
+        overlap=not args.no_overlap,
     )
     cpu0 = _cpu_s()
     t0 = time.perf_counter()
