@@ -150,15 +150,19 @@ class SmootherSettings:
             sequential elimination: 0.116 ms/frame CPU at 300, 0.096 at 30).
         isam_relinearize_threshold: iSAM2 relinearisation threshold (rad and
             m of a pose's tangent, m of a landmark, the bias's units).
-        isam_relinearize_velocity_mps: the same for a velocity [m/s]. The
-            constant-velocity factor is linear in the velocities but for the
-            rotation they are seen in, so their linearisation point matters
-            little; at the others' 0.1 nearly every recent velocity crossed it
-            between checks and every 10th update relinearised 100-350
-            variables (10-55 ms): at 0.5, 1,000 bench frames took 1.83 ms
-            per update on average instead of 3.24 (CPU), the causal error
-            68.62 mm instead of 68.25 (median 61.31, 61.59), the final
-            estimate unchanged (0.03 mm from batch).
+        isam_relinearize_velocity_mps: the same for a velocity [m/s]. Larger
+            is faster and a worse causal estimate (10,000 bench frames, window
+            300, recent 0: 0.1 -> 4.84 ms CPU per update, causal error 70.31
+            mm; 0.2 -> 4.19, 73.78; 0.3 -> 2.61, 75.83; 0.5 -> 2.22, 77.34; the
+            final estimate the same, 0.113 mm from batch).
+        isam_relinearize_recent_frames: only the velocities of the newest this
+            many frames may be relinearised (older ones are iSAM2's
+            ``noRelinKeys``; 0: all). Relinearising an old frame re-eliminates
+            the tree from it to the root, most of the window: at 0, every 10th
+            update relinearised 100-350 variables (10-55 ms). 10,000 bench
+            frames: 30 -> 4.13 ms CPU per update, causal 70.31 mm (as at 0);
+            10 -> 2.30, 72.44 (before this and the previous-frame ordering:
+            7.64 ms, 70.00 mm).
         isam_final_updates: cap on the converging updates after the last frame.
         isam_init_gate_m: a per-frame initial pose further than this from the
             motion model's prediction is ignored [m].
@@ -220,7 +224,8 @@ class SmootherSettings:
     lm_rel_tol: float = 1e-5
     segment_frames: int = 30
     isam_relinearize_threshold: float = 0.1
-    isam_relinearize_velocity_mps: float = 0.5
+    isam_relinearize_velocity_mps: float = 0.1
+    isam_relinearize_recent_frames: int = 30
     isam_final_updates: int = 20
     isam_relinearize_skip: int = 10
     isam_wildfire: float = 0.01
@@ -1141,7 +1146,8 @@ class _Isam2Run:
         in the tree: the next frame's motion factor then touched the path from
         it to the root, most of the tree again, and every update of a window's
         first segment was a batch reordering (whole tree, 1 -> 9 ms per frame
-        over 50 frames).
+        over 50 frames). Velocities older than ``isam_relinearize_recent_frames``
+        stay where they were linearised.
         """
         upd = gtsam.ISAM2UpdateParams()
         groups = gtsam.KeyGroupMap()
@@ -1157,6 +1163,12 @@ class _Isam2Run:
             if self.cv:
                 groups.insert2(V(i - 1), 1)
         upd.constrainedKeys = groups
+        recent = int(self.s.isam_relinearize_recent_frames)
+        if self.cv and recent > 0 and i - recent > self.start:
+            old = gtsam.KeyList()
+            for k in range(self.start, i - recent):
+                old.push_back(V(k))
+            upd.noRelinKeys = old
         return upd
 
     def add_frame(self, i: int, init_world_T_cam: np.ndarray | None) -> np.ndarray:
