@@ -94,7 +94,10 @@ def test_the_estimators_pnp_reuses_the_trackers_calls(real_flight, monkeypatch):
     frames = list(observed.frames)
     assert len(observed.solved_pnp) == len(frames) == 8
     assert all(k.observations is f for k, f in zip(observed.solved_pnp, frames, strict=True))
-    assert 3 <= run.pnp_solves < len(frames)  # each chunk's first frame is solved again
+    # The first frames of chunks 1 and 2 are solved again (the chain has a prior there, the
+    # tracker none); after one, the chain takes the tracker's again once a pose comes out
+    # the same bits (a cold solve that wins over the warm one).
+    assert 2 <= run.pnp_solves < len(frames)
     count = [0]
     real = perframe.solve_frame_pnp
 
