@@ -205,9 +205,11 @@ class DetectorSettings:
             per side), in turn until one reads; () disables. A tight crop
             drops the background that joins a small sign's disc, a wide one
             holds a rim the box cut (scripts/eval_detector.py --frames 60:
-            recall 88.9 -> 91.8 %, 0 wrong; photo flights +12 signs of 480;
-            0.1 after 0.05: +14 of the orbit's 1020 signs of 18-30 px in the
-            300-frame evaluation, nothing elsewhere, +2 ms/frame there).
+            recall 88.9 -> 91.8 %, 0 wrong; photo flights +12 signs of 480).
+        retry_small_margins: regions at most ``retry_small_px`` are then tried
+            with these margins too (+14 of the orbit's 1020 signs of 18-30 px
+            in the 300-frame evaluation, nothing elsewhere; for all regions
+            it cost bench_frontend's hard flight 20 % of fast mode's time).
         retry_thresholds: the decoder's binarisations tried on a retry
             (``DecoderSettings.thresholds``): on the evaluation's flights
             (held-out, photo, hard) these read every sign that all five
@@ -256,7 +258,8 @@ class DetectorSettings:
     track_scale: tuple[float, float] = (0.8, 1.4)
     track_scale_factor: float = 1.12
     track_min_found_frac: float = 0.5
-    retry_margins: tuple[float, ...] = (0.05, 0.1, 0.5)
+    retry_margins: tuple[float, ...] = (0.05, 0.5)
+    retry_small_margins: tuple[float, ...] = (0.1,)
     retry_thresholds: tuple[str, ...] = ("mean", "high", "adaptive")
     retry_min_windows: int = 20
     retry_small_px: float = 28.0
@@ -477,6 +480,10 @@ class SignDetector:
         self._retry_settings = tuple(
             DecoderSettings(region_margin=m, thresholds=self.settings.retry_thresholds)
             for m in self.settings.retry_margins
+        )
+        self._retry_small_settings = self._retry_settings + tuple(
+            DecoderSettings(region_margin=m, thresholds=self.settings.retry_thresholds)
+            for m in self.settings.retry_small_margins
         )
         w, h = self._cascade.getOriginalWindowSize()
         if w != h:  # signs are discs: a cascade of w x h windows was trained on something else
@@ -784,8 +791,10 @@ class SignDetector:
         codes: tuple[str, ...] | None,
         res: DecodeResult,
     ) -> DecodeResult:
-        """The first reading with the ``retry_margins`` crops in turn, else ``res``."""
-        for settings in self._retry_settings:
+        """The first reading with the ``retry_margins`` crops in turn (a small region's
+        then with ``retry_small_margins``), else ``res``."""
+        small = max(box[2], box[3]) <= self.settings.retry_small_px
+        for settings in self._retry_small_settings if small else self._retry_settings:
             again = decode_region(gray, box, codes, settings)
             if again.ok:
                 return again

@@ -383,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--no-retries",
         action="store_true",
-        help="the detector without its crop retries (DetectorSettings.retry_margins = ())",
+        help="the detector without its crop retries (retry_margins, retry_small_margins: ())",
     )
     ap.add_argument(
         "--skip-main",
@@ -395,7 +395,9 @@ def main(argv: list[str] | None = None) -> int:
     total = args.frames or (30 if args.quick else 300)
     modes = [m for m in args.modes.split(",") if m]
     sign_map = load_map(bundled_map_path())
-    base = DetectorSettings(retry_margins=()) if args.no_retries else DetectorSettings()
+    base = DetectorSettings()
+    if args.no_retries:
+        base = replace(base, retry_margins=(), retry_small_margins=())
     detectors = {m: SignDetector(args.cascade, replace(base, merge=m)) for m in ("paper", "group")}
     tables = {
         (mode, merge): {f"{lo}-{hi}": _empty() for lo, hi in BINS}

@@ -21,6 +21,7 @@ from signpose.sim.flight import SimSettings, simulate
 
 DIAMETER_PX = 60  # its cut box (36 px) is above retry_small_px
 CUT_BOX_FRAC = 0.6  # a region this fraction of the disc: the default crop cuts its rim
+NO_RETRIES = DetectorSettings(retry_margins=(), retry_small_margins=())
 
 
 def _sign_frame(
@@ -48,7 +49,7 @@ def test_a_region_whose_crop_cuts_the_rim_is_read_with_a_wider_crop():
     assert res.code == "0101"
     assert math.dist(res.keypoints_px["center"], (99.5, 99.5)) < 1.0
     # Without retries, or for a region few windows agree on, it stays refused.
-    plain = SignDetector(settings=DetectorSettings(retry_margins=()))
+    plain = SignDetector(settings=NO_RETRIES)
     assert plain.decode_box(frame, box, n_windows=40).reason == DecodeReason.CUT_BY_EDGE
     weak = DetectorSettings().retry_min_windows - 1
     assert box[2] > DetectorSettings().retry_small_px
@@ -110,7 +111,7 @@ def far_frame(tmp_path_factory):
 
 def test_on_a_far_frame_the_retries_find_a_small_sign_and_nothing_false(far_frame):
     gray, truth, sign_map = far_frame
-    before = SignDetector(settings=DetectorSettings(retry_margins=())).detect(gray, sign_map.codes)
+    before = SignDetector(settings=NO_RETRIES).detect(gray, sign_map.codes)
     after = SignDetector().detect(gray, sign_map.codes)
     assert {d.code for d in before.detections} < {d.code for d in after.detections}
     assert after.n_undecoded < before.n_undecoded
@@ -136,7 +137,7 @@ def test_eval_detector_names_the_cause_of_each_miss():
     side = float(DIAMETER_PX)
     true_box = (100 - side / 2, 100 - side / 2, side, side)
     sign = {"code": "0101", "center_px": [99.5, 99.5], "diameter_px": side, "bbox_px": true_box}
-    plain = SignDetector(settings=DetectorSettings(retry_margins=()))
+    plain = SignDetector(settings=NO_RETRIES)
     far = np.array([[0.0, 0.0, 30.0, 30.0]])
     counts = np.array([40])
     # No region near it; in fast mode also no candidate region holding its centre.
@@ -188,6 +189,7 @@ def test_a_frame_retries_at_most_retry_max_regions_regions_the_strongest_first(m
     det = SignDetector(settings=DetectorSettings(retry_max_regions=3))
     assert det._decode(frame, regions, counts, None) == ((), 8)
     retried = [box[0] for box, settings in calls if settings is not None]
-    n_margins = len(DetectorSettings().retry_margins)
+    s = DetectorSettings()
+    n_margins = len(s.retry_margins) + len(s.retry_small_margins)  # small regions: both
     # The three with most windows (9, 8, 7: regions 1, 5, 3), each with every margin.
     assert retried == [10.0] * n_margins + [50.0] * n_margins + [30.0] * n_margins
