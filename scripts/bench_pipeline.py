@@ -24,6 +24,7 @@ without the simulator: photographs behind, members and a conductor in front).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -35,10 +36,12 @@ import time
 from pathlib import Path
 
 from independent_flight import drawn_once
+from signpose.estimator import perframe
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.smoother import SmootherSettings
 from signpose.maps.loader import bundled_map_path, load_map
 
+from signpose import pipeline
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.io.camera_file import load_camera
@@ -144,6 +147,12 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="--workers of each run (default 0: the run's default, 2 on 2 cores)",
     )
     p.add_argument("--repeat", type=int, default=1, help="rounds of every configuration")
+    p.add_argument(
+        "--count-pnp",
+        action="store_true",
+        help="count the first run's solve_frame_pnp calls (tracker, estimator) in this "
+        "process: with --workers 1 that is every call; chunk processes are not counted",
+    )
     p.add_argument("--quiet", action="store_true")
     return p.parse_args(argv)
 
@@ -201,6 +210,26 @@ def _json_data(
         "cpu_count": os.cpu_count(),
         "python": platform.python_version(),
     }
+
+
+@contextlib.contextmanager
+def _counting_pnp(calls: dict[str, int]):
+    """solve_frame_pnp counted by caller: the tracker's (pipeline) and the estimator's."""
+    real = perframe.solve_frame_pnp
+
+    def counter(who: str):
+        def counted(*a, **kw):
+            calls[who] += 1
+            return real(*a, **kw)
+
+        return counted
+
+    pipeline.solve_frame_pnp = counter("tracker")
+    perframe.solve_frame_pnp = counter("estimator")
+    try:
+        yield calls
+    finally:
+        pipeline.solve_frame_pnp = perframe.solve_frame_pnp = real
 
 
 def _timed_run(args, scene: str, workers: int, flight) -> tuple[RunResult, float, float]:
@@ -266,11 +295,14 @@ def main(argv: list[str] | None = None) -> int:
             flights[scene] = _independent(args.work, args.frames, args.width, args.height)
     samples: dict[str, dict[str, list[float]]] = {}
     first, est = None, {}
+    pnp_calls = {"tracker": 0, "estimator": 0}
     for _ in range(args.repeat):
         for scene, flight in flights.items():
             for workers in args.workers:
                 decode_fps = _decode_only_fps(flight[0])
-                result, wall, cpu = _timed_run(args, scene, workers, flight)
+                counting = _counting_pnp(pnp_calls) if args.count_pnp and first is None else None
+                with counting or contextlib.nullcontext():
+                    result, wall, cpu = _timed_run(args, scene, workers, flight)
                 if first is None:  # its folder is run again by the later rounds
                     first = (scene, workers, result, wall, cpu, decode_fps)
                     est = result_estimator_timing(args.work / f"run_{scene}_w{workers}")
@@ -278,6 +310,9 @@ def main(argv: list[str] | None = None) -> int:
                 row["decode"].append(decode_fps)
                 row["run"].append(result.n_frames / wall)
     scene, workers, result, wall, cpu, decode_fps = first
+    if args.count_pnp:
+        where = "every call" if workers == 1 else "chunk processes not counted"
+        print(f"solve_frame_pnp calls of the first run in this process ({where}): {pnp_calls}")
     print(f"first run: scene {scene}, --workers {workers}")
     _print_timing(args, result, wall, cpu)
     budget = result.n_frames / (0.5 * decode_fps)
