@@ -13,6 +13,7 @@ density with it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -152,6 +153,22 @@ def _window(
     return window, stamps_s[a : a + max_frames], init[a : a + max_frames]
 
 
+def _evidence_score(graph, trial: SmootherSettings, start):
+    """(-log evidence of ``trial``, the solution to start the next candidate from).
+
+    A solve from the previous candidate's solution whose system comes out
+    indeterminate (gtsam raises) is done again from the initial poses; a
+    candidate indeterminate from there too scores +inf (never chosen).
+    """
+    for begin in (start, None) if start is not None else (None,):
+        try:
+            evidence, solution = graph.evidence(trial, begin)
+            return -evidence, solution
+        except RuntimeError:
+            continue
+    return math.inf, start
+
+
 def tune_motion_prior(
     meas: Measurements,
     stamps_s: np.ndarray,
@@ -193,15 +210,15 @@ def tune_motion_prior(
         for value in grid:
             trial = replace(s, **{name: float(value)})
             if tuning.criterion == EVIDENCE:
-                evidence, start = graph.evidence(trial, start)
-                score = -evidence
+                score, start = _evidence_score(graph, trial, start)
             else:
                 score = _held_out_score(
                     meas, held, stamps_s, init, camera, trial, default_world_T_cam, tuning.cap_chi2
                 )
             tried.append((score, float(value)))
             scores.append((name, float(value), score))
-        return min(tried)[1]
+        best = min(tried)
+        return best[1] if math.isfinite(best[0]) else float(getattr(s, name))
 
     pos = best_of(pos_name, tuning.position_grid, base)
     rot = default_rot

@@ -7,7 +7,7 @@ from conftest import estimator_scene
 from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
 from signpose.estimator.smoother import SmootherSettings, collect_measurements, default_pose
 from signpose.estimator.trajectory import Trajectory
-from signpose.estimator.tuning import TuningSettings, tune_motion_prior
+from signpose.estimator.tuning import TuningSettings, _evidence_score, tune_motion_prior
 
 from signpose.io.results import write_outputs
 from signpose.sim.observations import SyntheticSettings, synthesize_observations
@@ -47,3 +47,28 @@ def test_the_chosen_prior_is_in_the_report(tmp_path):
         progress=False,
     )
     assert off.motion is None
+
+
+class _Flaky:
+    """An EvidenceGraph stand-in: indeterminate from ``bad`` starts."""
+
+    def __init__(self, bad):
+        self.bad, self.calls = bad, []
+
+    def evidence(self, trial, start):
+        self.calls.append(start)
+        if start in self.bad:
+            raise RuntimeError("Indeterminate linear system detected")
+        return 5.0, "solution"
+
+
+def test_an_indeterminate_candidate_is_solved_again_cold_or_never_chosen():
+
+    g = _Flaky(bad={"warm"})
+    assert _evidence_score(g, None, "warm") == (-5.0, "solution")
+    assert g.calls == ["warm", None]
+    g = _Flaky(bad={"warm", None})
+    score, start = _evidence_score(g, None, "warm")
+    assert score == float("inf") and start == "warm"
+    g = _Flaky(bad=set())
+    assert _evidence_score(g, None, None) == (-5.0, "solution") and g.calls == [None]
