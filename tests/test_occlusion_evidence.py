@@ -187,3 +187,16 @@ def test_black_references_under_a_lighter_member_are_left_out(monkeypatch):
     assert decode_roi(image, PAPER_CODES).code is None  # 0100 fits too
     monkeypatch.setattr(occlusion, "off_black_bands", lambda *a, **k: [])
     assert decode_roi(image, ["1100", "0101", "0011"]).reason == DecodeReason.INCONSISTENT
+
+
+def test_a_code_whose_every_white_slot_is_hidden_is_refused(monkeypatch):
+    """1000 with a member over its only white slot: x000 fits 1000 alone in
+    this map, but nothing seen says "this sign" rather than any dark disc with
+    a centre and a direction, so it is refused; 1100 with slot 1 hidden still
+    shows slot 2 white and decodes."""
+    codes = ["1000", "1100", "0101", "0011"]
+    assert decode_roi(_bar_lighter_than_the_print("1000", 1, None), codes).code == "1000"
+    res = decode_roi(_bar_lighter_than_the_print("1000", 1, 0.35), ["1000", "0101", "0011"])
+    assert res.code is None and res.reason == DecodeReason.OCCLUDED
+    seen = decode_roi(_bar_lighter_than_the_print("1100", 1, 0.35), ["1100", "0101", "0011"])
+    assert seen.code == "1100" and seen.erased_slots == (1,)
