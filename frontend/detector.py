@@ -893,7 +893,10 @@ class SignDetector:
         if self._tracking_held(res, predictions, gray.shape, refresh):
             return res
         full = self.detect(gray, codes, "fast")
-        timing = {k: res.timing.get(k, 0.0) + v for k, v in full.timing.items()}
+        # Every stage of both searches (the verification's time kept too).
+        timing = {
+            k: res.timing.get(k, 0.0) + full.timing.get(k, 0.0) for k in res.timing | full.timing
+        }
         timing["total"] = (time.perf_counter() - t0) * 1e3
         return DetectionResult(
             one_per_sign(verified + list(full.detections)),

@@ -147,6 +147,9 @@ def test_tracking_finds_predicted_signs_and_falls_back_when_lost(frame):
     lost = det.detect_tracked(gray, [("1111", (60.0, 60.0), 40.0)])
     assert lost.fell_back
     assert _n_true(lost, truth) >= 0.8 * ceiling
+    # The time spent verifying before the fallback is still reported (inside decode).
+    assert lost.timing["verify"] > 0.0
+    assert lost.timing["decode"] >= lost.timing["verify"]
 
 
 def test_tracking_with_refresh_needs_every_predicted_sign(frame):
