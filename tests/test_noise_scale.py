@@ -50,6 +50,18 @@ def test_scaling_a_pose_and_frames():
     assert q.chi2 == 2.0 and np.allclose(q.cov6, 4 * np.eye(6))
     assert scaled_pose(p, 1.0) is p
     _, _, frames, _, _ = estimator_scene(n_frames=3, sigma_px=0.2)
+    # the synthetic signs carry no per-keypoint sigmas: give them some
+    frames = [
+        replace(
+            f,
+            signs=tuple(
+                replace(o, keypoint_sigma_px={k: (0.1, 0.2) for k in o.keypoints_px})
+                for o in f.signs
+            ),
+        )
+        for f in frames
+    ]
+    assert any(o.keypoint_sigma_px for f in frames for o in f.signs)
     out = scaled_frames(frames, 3.0)
     assert scaled_frames(frames, 1.0) is frames
     for f, g in zip(frames, out, strict=True):
