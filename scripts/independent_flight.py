@@ -10,11 +10,36 @@ warped through the camera (``cv2.warpPerspective`` of the face and of its disc's
 coverage), pylon members and conductors as 3D cylinders between the camera and
 the signs (some crossing signs), gain drift, motion blur bursts and noise, then
 an mp4v video. Only the geometry is the simulator's: its trajectory
-(``sim.trajectories.make_trajectory``) and its camera, without lens distortion.
+(``sim.trajectories.make_trajectory``) and its camera's intrinsics.
 
-Writes ``video.mp4``, ``camera.yaml`` (pinhole) and ``groundtruth.tum`` into OUT:
+Options (``FlightOptions``; the defaults draw the benchmarks' flight, byte for
+byte as before) make it a flight for an end-to-end evaluation
+(``scripts/eval_flight.py``):
+
+* ``--distortion k1 k2 p1 p2``: a real lens (OpenCV's plumb_bob model). The
+  scene is drawn through a pinhole on a larger canvas, then every raw pixel
+  samples it (``cv2.remap``) where this script's own inverse of the lens model
+  (Newton on the polynomial written out here, not OpenCV's) puts it; blur and
+  noise are added after the lens, as a sensor would. camera.yaml carries the
+  distortion.
+* ``--jpeg LO HI``: each frame JPEG-encoded at a quality drawn in [LO, HI]
+  before the video.
+* ``--vibration DEG``: high-frequency rotation jitter of the camera (6-14 Hz
+  sinusoids, DEG RMS per axis); groundtruth.tum follows it.
+* ``--pan DEG``: a slow yaw (and pitch) pan that sweeps the signs to the
+  image's edges, where the lens bends most; ``--distance M`` from the signs.
+* ``--members SHARE``: share of the signs with a member crossing in front.
+* ``--map MAP``: the signs drawn (default: the bundled map).
+* ``--trajectory NAME``, ``--speed M/S``, ``--wobble-seed N``: the flight path.
+* ``--truth``: also ``truth.jsonl``, per frame every sign drawn (code, centre,
+  keypoints and box in raw pixels through the lens, diameter, share of its disc that a
+  member or conductor hides) and the frame's conditions (JPEG quality, blur
+  burst, gain).
+
+Writes ``video.mp4``, ``camera.yaml`` and ``groundtruth.tum`` into OUT:
 
     .venv/bin/python scripts/independent_flight.py OUT --frames 600 [--width 1920 --height 1080]
+        [--distortion -0.3 0.1 0.0005 -0.0003] [--jpeg 70 90] [--vibration 0.3] [--truth]
 """
 
 from __future__ import annotations
@@ -23,12 +48,13 @@ import argparse
 import json
 import math
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 from independent_scene import SUPERSAMPLE, _bar_polygon, _face, _motion_kernel, _photo
+from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map
 
 from signpose.core.fileio import atomic_path, atomic_write, ensure_dir
@@ -47,6 +73,44 @@ CONDUCTOR_RADIUS_M = 0.02
 NOISE_SIGMA = 2.0
 NOISE_BANK = 6  # noise images cycled over the frames
 BLUR_EVERY = 45  # frames between motion blur bursts (3 frames each)
+RIM_POINTS = 48  # points on a sign's rim projected for its box in truth.jsonl
+VIBRATION_HZ = (6.0, 14.0)  # frequency range of the camera's rotation jitter
+PAN_PERIOD_S = (8.0, 5.3)  # periods of the slow yaw and pitch pan
+LENS_NEWTON_STEPS = 30
+
+
+@dataclass(frozen=True)
+class FlightOptions:
+    """What a flight shows beyond the benchmarks' defaults.
+
+    Attributes:
+        seed: seeds the members, the noise, the JPEG qualities and the jitter.
+        dist: plumb_bob (k1, k2, p1, p2[, k3]); () = the ideal pinhole.
+        jpeg: (lowest, highest) JPEG quality per frame, or None (no JPEG).
+        vibration_deg: RMS rotation jitter per camera axis [deg] (0 = none).
+        pan_deg: amplitude of a slow yaw pan (pitch: 0.45 of it) that sweeps
+            the signs toward the image's edges, where the lens bends most.
+        distance_m: nominal distance from the signs [m].
+        member_share: share of the signs with a member crossing in front.
+        map_path: the map drawn; None = the bundled one.
+        trajectory: one of ``signpose.sim.trajectories.TRAJECTORIES``.
+        speed_mps: cruise speed [m/s]; None = the whole path once (the old timing).
+        wobble_seed: seeds the trajectory's wobble.
+        truth: also write ``truth.jsonl``.
+    """
+
+    seed: int = 0
+    dist: tuple[float, ...] = ()
+    jpeg: tuple[int, int] | None = None
+    vibration_deg: float = 0.0
+    pan_deg: float = 0.0
+    distance_m: float = SimSettings().distance_m
+    member_share: float = MEMBER_SHARE
+    map_path: Path | None = None
+    trajectory: str = field(default=SimSettings().trajectory)
+    speed_mps: float | None = None
+    wobble_seed: int = 0
+    truth: bool = False
 
 
 @dataclass(frozen=True)
@@ -59,6 +123,105 @@ class Bar:
     shade: float
 
 
+@dataclass(frozen=True)
+class Lens:
+    """How a pinhole canvas becomes the raw image.
+
+    Attributes:
+        canvas_K: (3, 3) intrinsics of the pinhole canvas (the camera's K, shifted).
+        canvas_size: (width, height) of the canvas [px].
+        map_x, map_y: (H, W) float32 canvas coordinates each raw pixel samples.
+    """
+
+    canvas_K: np.ndarray
+    canvas_size: tuple[int, int]
+    map_x: np.ndarray
+    map_y: np.ndarray
+
+
+# --------------------------------------------------------------------------- the lens
+
+
+def _coefficients(dist) -> tuple[float, float, float, float, float]:
+    d = [float(x) for x in dist] + [0.0] * 5
+    return d[0], d[1], d[2], d[3], d[4]
+
+
+def distort_normalized(xy: np.ndarray, dist) -> np.ndarray:
+    """plumb_bob: (N, 2) ideal normalised image points to distorted ones (OpenCV's convention)."""
+    k1, k2, p1, p2, k3 = _coefficients(dist)
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([xd, yd], axis=1)
+
+
+def _distortion_jacobian(xy: np.ndarray, dist) -> np.ndarray:
+    """(N, 2, 2) d distorted / d ideal of ``distort_normalized``."""
+    k1, k2, p1, p2, k3 = _coefficients(dist)
+    x, y = xy[:, 0], xy[:, 1]
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    d_radial = 2 * (k1 + r2 * (2 * k2 + 3 * k3 * r2))  # d radial / d r2, times 2
+    j = np.empty((len(xy), 2, 2))
+    j[:, 0, 0] = radial + x * x * d_radial + 2 * p1 * y + 6 * p2 * x
+    j[:, 0, 1] = x * y * d_radial + 2 * p1 * x + 2 * p2 * y
+    j[:, 1, 0] = x * y * d_radial + 2 * p1 * x + 2 * p2 * y
+    j[:, 1, 1] = radial + y * y * d_radial + 6 * p1 * y + 2 * p2 * x
+    return j
+
+
+def undistort_normalized(xy_d: np.ndarray, dist) -> np.ndarray:
+    """Inverse of ``distort_normalized`` by Newton steps; raises where the lens folds over."""
+    xy = np.array(xy_d, dtype=float).reshape(-1, 2)
+    for _ in range(LENS_NEWTON_STEPS):
+        step = np.linalg.solve(
+            _distortion_jacobian(xy, dist), (distort_normalized(xy, dist) - xy_d)[..., None]
+        )
+        xy -= step[..., 0]
+    det = np.linalg.det(_distortion_jacobian(xy, dist))
+    worst = float(np.abs(distort_normalized(xy, dist) - xy_d).max(initial=0.0))
+    if worst > 1e-9 or (det <= 0).any():
+        raise ValueError(f"lens {tuple(dist)} is not invertible over the image (residual {worst})")
+    return xy
+
+
+def raw_from_pinhole_px(k: np.ndarray, dist, uv: np.ndarray) -> np.ndarray:
+    """(N, 2) pinhole pixels of intrinsics ``k`` to raw pixels through the lens."""
+    xy = (np.asarray(uv, float).reshape(-1, 2) - k[:2, 2]) / [k[0, 0], k[1, 1]]
+    return distort_normalized(xy, dist) * [k[0, 0], k[1, 1]] + k[:2, 2]
+
+
+def pinhole_from_raw_px(k: np.ndarray, dist, uv: np.ndarray) -> np.ndarray:
+    """(N, 2) raw pixels to the pinhole pixels of intrinsics ``k`` (this script's inverse)."""
+    xy = (np.asarray(uv, float).reshape(-1, 2) - k[:2, 2]) / [k[0, 0], k[1, 1]]
+    return undistort_normalized(xy, dist) * [k[0, 0], k[1, 1]] + k[:2, 2]
+
+
+def make_lens(k: np.ndarray, dist, width: int, height: int, margin_px: int = 4) -> Lens:
+    """The canvas a raw image of ``width`` x ``height`` through the lens needs, and its map."""
+    vv, uu = np.mgrid[0:height, 0:width]
+    raw = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(float)
+    ideal = pinhole_from_raw_px(k, dist, raw)
+    x0, y0 = np.floor(ideal.min(axis=0)).astype(int) - margin_px
+    x1, y1 = np.ceil(ideal.max(axis=0)).astype(int) + margin_px
+    canvas_k = np.array(k, dtype=float)
+    canvas_k[0, 2] -= x0
+    canvas_k[1, 2] -= y0
+    at = (ideal - [x0, y0]).astype(np.float32)
+    return Lens(
+        canvas_k,
+        (int(x1 - x0 + 1), int(y1 - y0 + 1)),
+        at[:, 0].reshape(height, width).copy(),
+        at[:, 1].reshape(height, width).copy(),
+    )
+
+
+# --------------------------------------------------------------------------- the scene
+
+
 def _panorama(height: int) -> np.ndarray:
     """The photographs side by side at ``height`` rows (float32 gray)."""
     tiles = []
@@ -69,11 +232,11 @@ def _panorama(height: int) -> np.ndarray:
     return np.hstack(tiles)
 
 
-def _bars(sign_map: SignMap, rng: np.random.Generator) -> list[Bar]:
-    """Members crossing in front of some signs (``MEMBER_SHARE``), and ``CONDUCTORS``."""
+def _bars(sign_map: SignMap, rng: np.random.Generator, share: float = MEMBER_SHARE) -> list[Bar]:
+    """Members crossing in front of some signs (``share``), and ``CONDUCTORS``."""
     bars = []
     for sign in sign_map.signs:
-        if not sign.oriented or rng.random() > MEMBER_SHARE:
+        if not sign.oriented or rng.random() > share:
             continue
         r = sign.world_R_sign()
         a = rng.uniform(0, math.pi)
@@ -115,10 +278,11 @@ def _sign_roi(sign: MapSign, k: np.ndarray, cam_T_world: np.ndarray, w: int, h: 
     return img_from_sign @ sign_from_tex, x0, y0, x1, y1
 
 
-def _draw_sign(canvas: np.ndarray, sign: MapSign, k, cam_T_world, gain: float) -> None:
+def _draw_sign(canvas: np.ndarray, sign: MapSign, k, cam_T_world, gain: float):
+    """Draw the sign; returns (x0, y0, its disc's coverage in its box) or None when not drawn."""
     roi = _sign_roi(sign, k, cam_T_world, canvas.shape[1], canvas.shape[0])
     if roi is None:
-        return
+        return None
     img_h_tex, x0, y0, x1, y1 = roi
     tex, alpha = _face(sign.code, TEXTURE_PX)
     # Drawn at SUPERSAMPLE x the resolution, then area-averaged down (pixel centres at integers).
@@ -134,77 +298,250 @@ def _draw_sign(canvas: np.ndarray, sign: MapSign, k, cam_T_world, gain: float) -
     face = gain * (BLACK + (WHITE - BLACK) * face)
     patch = canvas[y0:y1, x0:x1]
     patch[:] = patch * (1 - cover) + face * cover
+    return x0, y0, cover
 
 
-def _draw_bar(canvas: np.ndarray, bar: Bar, k, cam_T_world) -> None:
+def _draw_bar(canvas: np.ndarray, bar: Bar, k, cam_T_world) -> np.ndarray | None:
+    """Draw the cylinder; returns its coverage of the canvas (None when out of view)."""
     ends = np.stack([bar.p0_m, bar.p1_m]) @ cam_T_world[:3, :3].T + cam_T_world[:3, 3]
     z_min = 0.3
     if (ends[:, 2] < z_min).all():
-        return
+        return None
     for i in (0, 1):  # keep the segment in front of the camera
         a, b = ends[i], ends[1 - i]
         if a[2] < z_min:
             ends[i] = a + (z_min - a[2]) / (b[2] - a[2]) * (b - a)
     poly = _bar_polygon(k, ends[0], ends[1], bar.radius_m)
     if not np.isfinite(poly).all() or np.abs(poly).max() > 1e6:
-        return
+        return None
     mask = np.zeros(canvas.shape, np.uint8)
     cv2.fillConvexPoly(mask, np.round(poly * 16).astype(np.int32), 255, cv2.LINE_AA, 4)
     cover = mask.astype(np.float32) / 255.0
     canvas *= 1 - cover
     canvas += cover * bar.shade
+    return cover
+
+
+def _gain(i: int) -> float:
+    return 1.0 + 0.25 * math.sin(i / 40.0)
+
+
+def _draw_scene(i: int, world_T_cam: np.ndarray, k, scene: dict, size: tuple[int, int]):
+    """(canvas float32 (H, W), {code: share of its disc hidden}) of frame ``i``, before optics."""
+    w, h = size
+    pano = scene["panorama"]
+    x = int(i * 2) % max(1, pano.shape[1] - w)
+    canvas = pano[:h, x : x + w].copy()
+    cam_T_world = np.linalg.inv(world_T_cam)
+    drawn = {}
+    for sign in scene["signs"]:
+        placed = _draw_sign(canvas, sign, k, cam_T_world, _gain(i))
+        if placed is not None:
+            drawn[sign.code] = placed
+    hidden = np.zeros_like(canvas) if scene.get("truth") else None
+    for bar in scene["bars"]:
+        cover = _draw_bar(canvas, bar, k, cam_T_world)
+        if cover is not None and hidden is not None:
+            np.maximum(hidden, cover, out=hidden)
+    shares = {}
+    for code, (x0, y0, disc) in drawn.items():
+        if hidden is not None:
+            under = hidden[y0 : y0 + disc.shape[0], x0 : x0 + disc.shape[1]]
+            shares[code] = float((disc * under).sum() / max(disc.sum(), 1e-9))
+    return canvas, shares
+
+
+def _optics(canvas: np.ndarray, i: int, scene: dict) -> np.ndarray:
+    """Blur bursts, the optics' blur and the sensor's noise: (H, W) gray uint8."""
+    if i % BLUR_EVERY < 3:
+        canvas = cv2.filter2D(canvas, -1, _motion_kernel(5.0, 0.3 * i))
+    canvas = cv2.GaussianBlur(canvas, (0, 0), 0.6) + scene["noise"][i % NOISE_BANK]
+    return np.clip(np.round(canvas), 0, 255).astype(np.uint8)
+
+
+def _frame_gray(i: int, world_T_cam: np.ndarray, k, scene: dict, size: tuple[int, int]):
+    """(frame (H, W) gray uint8, {code: hidden share}) through the lens when the scene has one."""
+    lens: Lens | None = scene.get("lens")
+    if lens is None:
+        canvas, shares = _draw_scene(i, world_T_cam, k, scene, size)
+    else:
+        canvas, shares = _draw_scene(i, world_T_cam, lens.canvas_K, scene, lens.canvas_size)
+        canvas = cv2.remap(canvas, lens.map_x, lens.map_y, cv2.INTER_LINEAR, cv2.BORDER_REPLICATE)
+    return _optics(canvas, i, scene), shares
 
 
 def render_frame(
     i: int, world_T_cam: np.ndarray, k: np.ndarray, scene: dict, size: tuple[int, int]
 ) -> np.ndarray:
     """Frame ``i`` as (H, W, 3) BGR uint8."""
-    w, h = size
-    pano = scene["panorama"]
-    x = int(i * 2) % max(1, pano.shape[1] - w)
-    canvas = pano[:h, x : x + w].copy()
-    gain = 1.0 + 0.25 * math.sin(i / 40.0)
-    cam_T_world = np.linalg.inv(world_T_cam)
-    for sign in scene["signs"]:
-        _draw_sign(canvas, sign, k, cam_T_world, gain)
-    for bar in scene["bars"]:
-        _draw_bar(canvas, bar, k, cam_T_world)
-    if i % BLUR_EVERY < 3:
-        canvas = cv2.filter2D(canvas, -1, _motion_kernel(5.0, 0.3 * i))
-    canvas = cv2.GaussianBlur(canvas, (0, 0), 0.6) + scene["noise"][i % NOISE_BANK]
-    gray = np.clip(np.round(canvas), 0, 255).astype(np.uint8)
+    gray, _ = _frame_gray(i, world_T_cam, k, scene, size)
     return cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
 
 
-def write_flight(out_dir: Path, frames: int, width: int, height: int, seed: int = 0) -> Path:
-    """Render the flight into ``out_dir``; returns the video's path."""
+# --------------------------------------------------------------------------- truth
+
+
+def signs_in_view(
+    signs, k: np.ndarray, dist, world_T_cam: np.ndarray, size: tuple[int, int]
+) -> list[dict]:
+    """Every sign facing the camera in front of it: code, raw centre, box, diameter and
+    every keypoint of the map's sign [px].
+
+    ``inside``: the whole disc lies in the image. Pixels through this script's own
+    lens model (``raw_from_pinhole_px``).
+    """
+    cam_T_world = np.linalg.inv(world_T_cam)
+    r_cw, t_cw = cam_T_world[:3, :3], cam_T_world[:3, 3]
+    a = np.linspace(0, 2 * np.pi, RIM_POINTS, endpoint=False)
+    out = []
+    for s in signs:
+        r_ws = s.world_R_sign()
+        c_cam = r_cw @ s.center_m + t_cw
+        if (r_cw @ r_ws[:, 2]) @ c_cam > 0:
+            continue  # seen from the back
+        rim = s.center_m + (s.diameter_m / 2) * np.outer(np.cos(a), r_ws[:, 0])
+        rim = rim + (s.diameter_m / 2) * np.outer(np.sin(a), r_ws[:, 1])
+        names, points = zip(*s.keypoints_world().items(), strict=True)
+        cam = np.vstack([c_cam, rim @ r_cw.T + t_cw, np.array(points) @ r_cw.T + t_cw])
+        if (cam[:, 2] < 0.5).any():
+            continue
+        px = raw_from_pinhole_px(k, dist, (cam @ k.T)[:, :2] / cam[:, 2:])
+        lo, hi = px[1 : 1 + RIM_POINTS].min(axis=0), px[1 : 1 + RIM_POINTS].max(axis=0)
+        keypoints = {
+            n: [round(float(v), 4) for v in p]
+            for n, p in zip(names, px[1 + RIM_POINTS :], strict=True)
+        }
+        inside = bool((lo >= 0).all() and hi[0] <= size[0] - 1 and hi[1] <= size[1] - 1)
+        out.append(
+            {
+                "code": s.code,
+                "center_px": [round(float(v), 4) for v in px[0]],
+                "box_px": [round(float(v), 2) for v in (*lo, *hi)],
+                "diameter_px": round(float((hi - lo).max()), 2),
+                "inside": inside,
+                "keypoints_px": keypoints,
+            }
+        )
+    return out
+
+
+def _truth_line(i: int, signs: list[dict], shares: dict, quality: int | None) -> str:
+    for s in signs:
+        s["hidden"] = round(shares.get(s["code"], 0.0), 4)
+    conditions = {"jpeg_quality": quality, "blur": i % BLUR_EVERY < 3, "gain": _gain(i)}
+    return json.dumps({"frame": i, "conditions": conditions, "signs": signs}) + "\n"
+
+
+# --------------------------------------------------------------------------- the flight
+
+
+def _vibrated(traj: Trajectory, deg: float, rng: np.random.Generator) -> Trajectory:
+    """The trajectory with a rotation jitter of ``deg`` RMS per camera axis (about its centre)."""
+    if deg <= 0:
+        return traj
+    freqs = rng.uniform(*VIBRATION_HZ, size=(3, 3))
+    phases = rng.uniform(0, 2 * np.pi, size=(3, 3))
+    poses = traj.world_T_cam()
+    for i, t in enumerate(traj.stamps_s):
+        # Three unit sinusoids per axis sum to an RMS of sqrt(3 / 2).
+        rotvec = np.radians(deg) * np.sin(2 * np.pi * freqs * t + phases).sum(axis=1) / 1.2247
+        poses[i, :3, :3] = poses[i, :3, :3] @ cv2.Rodrigues(rotvec)[0]
+    return Trajectory.from_matrices(traj.stamps_s, poses)
+
+
+def _panned(traj: Trajectory, deg: float) -> Trajectory:
+    """The trajectory with a slow pan: yaw about world up, pitch about the camera's x axis."""
+    if deg <= 0:
+        return traj
+    poses = traj.world_T_cam()
+    for i, t in enumerate(traj.stamps_s):
+        yaw = math.radians(deg) * math.sin(2 * math.pi * t / PAN_PERIOD_S[0])
+        pitch = 0.45 * math.radians(deg) * math.sin(2 * math.pi * t / PAN_PERIOD_S[1] + 1.0)
+        r_yaw = cv2.Rodrigues(np.array([0.0, 0.0, yaw]))[0]
+        r_pitch = cv2.Rodrigues(np.array([pitch, 0.0, 0.0]))[0]
+        poses[i, :3, :3] = r_yaw @ poses[i, :3, :3] @ r_pitch
+    return Trajectory.from_matrices(traj.stamps_s, poses)
+
+
+def _jpeg(gray: np.ndarray, quality: int) -> np.ndarray:
+    ok, buf = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+
+
+def _scene(sign_map: SignMap, o: FlightOptions, camera, size) -> dict:
+    w, h = size
+    rng = np.random.default_rng(o.seed)
+    lens = make_lens(camera.K, o.dist, w, h) if any(o.dist) else None
+    return {
+        "panorama": _panorama(h if lens is None else max(h, lens.canvas_size[1])),
+        "signs": [s for s in sign_map.signs if s.oriented],
+        "bars": _bars(sign_map, rng, o.member_share),
+        "noise": [rng.normal(0, NOISE_SIGMA, (h, w)).astype(np.float32) for _ in range(NOISE_BANK)],
+        "lens": lens,
+        "truth": o.truth,
+    }
+
+
+def write_flight(
+    out_dir: Path,
+    frames: int,
+    width: int,
+    height: int,
+    seed: int = 0,
+    options: FlightOptions | None = None,
+) -> Path:
+    """Render the flight into ``out_dir``; returns the video's path.
+
+    ``options`` (its ``seed`` replaced by ``seed``) says what the flight shows;
+    None: the benchmarks' flight.
+    """
+    o = replace(options or FlightOptions(), seed=seed)
     out = ensure_dir(out_dir)
-    sign_map = load_map(bundled_map_path())
+    sign_map = load_map(o.map_path or bundled_map_path())
     settings = SimSettings(frames=frames, width=width, height=height, seed=seed)
     camera = replace(simulated_camera(settings), dist=np.zeros(5), name="independent")
-    traj = make_trajectory(settings.trajectory, sign_map, n_frames=frames, fps=settings.fps)
-    rng = np.random.default_rng(seed)
-    scene = {
-        "panorama": _panorama(height),
-        "signs": [s for s in sign_map.signs if s.oriented],
-        "bars": _bars(sign_map, rng),
-        "noise": [
-            rng.normal(0, NOISE_SIGMA, (height, width)).astype(np.float32)
-            for _ in range(NOISE_BANK)
-        ],
-    }
-    video = out / "video.mp4"
+    if any(o.dist):
+        camera = replace(camera, dist=np.array(_coefficients(o.dist)))
+    traj = make_trajectory(
+        o.trajectory,
+        sign_map,
+        n_frames=frames,
+        fps=settings.fps,
+        distance_m=o.distance_m,
+        seed=o.wobble_seed,
+        speed_mps=o.speed_mps,
+    )
+    scene = _scene(sign_map, o, camera, (width, height))
+    traj = _vibrated(_panned(traj, o.pan_deg), o.vibration_deg, np.random.default_rng(o.seed + 1))
+    qualities = np.random.default_rng(o.seed + 2).integers(
+        *(o.jpeg or (0, 1)), frames, endpoint=True
+    )
+    video, truth = out / "video.mp4", []
     with atomic_path(video) as tmp:
         writer = cv2.VideoWriter(
             str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), settings.fps, (width, height)
         )
         try:
             for i, world_T_cam in enumerate(traj.world_T_cam()):
-                writer.write(render_frame(i, world_T_cam, camera.K, scene, (width, height)))
+                gray, shares = _frame_gray(i, world_T_cam, camera.K, scene, (width, height))
+                q = int(qualities[i]) if o.jpeg else None
+                if q is not None:
+                    gray = _jpeg(gray, q)
+                writer.write(cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR))
+                if o.truth:
+                    seen = signs_in_view(
+                        scene["signs"], camera.K, o.dist, world_T_cam, (width, height)
+                    )
+                    truth.append(_truth_line(i, seen, shares, q))
         finally:
             writer.release()
     write_camera_info(out / "camera.yaml", camera)
     write_tum(out / "groundtruth.tum", traj, ("scripts/independent_flight.py",))
+    if o.truth:
+        with atomic_write(out / "truth.jsonl") as f:
+            f.writelines(truth)
     return video
 
 
@@ -221,6 +558,23 @@ def drawn_once(out_dir: Path, frames: int, width: int, height: int, stamp_name: 
     return video
 
 
+def options_from_args(args: argparse.Namespace) -> FlightOptions:
+    return FlightOptions(
+        seed=args.seed,
+        dist=tuple(args.distortion or ()),
+        jpeg=tuple(args.jpeg) if args.jpeg else None,
+        vibration_deg=args.vibration,
+        pan_deg=args.pan,
+        distance_m=args.distance,
+        member_share=args.members,
+        map_path=args.map,
+        trajectory=args.trajectory,
+        speed_mps=args.speed,
+        wobble_seed=args.wobble_seed,
+        truth=args.truth,
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out", type=Path, help="output folder")
@@ -228,8 +582,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--width", type=int, default=1920)
     ap.add_argument("--height", type=int, default=1080)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--distortion", type=float, nargs="+", metavar="K", help="k1 k2 p1 p2 [k3]")
+    ap.add_argument("--jpeg", type=int, nargs=2, metavar=("LO", "HI"), help="JPEG quality range")
+    ap.add_argument("--vibration", type=float, default=0.0, help="rotation jitter, deg RMS/axis")
+    ap.add_argument("--pan", type=float, default=0.0, help="slow yaw pan amplitude [deg]")
+    ap.add_argument("--distance", type=float, default=SimSettings().distance_m, help="[m]")
+    ap.add_argument("--members", type=float, default=MEMBER_SHARE, help="share of signs crossed")
+    ap.add_argument("--map", type=Path, default=None, help="map drawn (default: the bundled one)")
+    ap.add_argument("--trajectory", default=SimSettings().trajectory)
+    ap.add_argument("--speed", type=float, default=None, help="cruise speed [m/s]")
+    ap.add_argument("--wobble-seed", type=int, default=0)
+    ap.add_argument("--truth", action="store_true", help="also write truth.jsonl")
     args = ap.parse_args(argv)
-    print(write_flight(args.out, args.frames, args.width, args.height, args.seed))
+    print(
+        write_flight(
+            args.out, args.frames, args.width, args.height, args.seed, options_from_args(args)
+        )
+    )
     return 0
 
 
