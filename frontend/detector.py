@@ -442,6 +442,44 @@ def group_merge(
 
 # --------------------------------------------------------------------------- detector
 
+# Fast mode's openings of the dark pixels: square kernels' sides [half-frame px].
+_OPENINGS = (5, 11)
+
+
+def _opened_blobs(mask: np.ndarray, k: int) -> list[list[int]]:
+    """(x, y, w, h, area) of the 8-connected blobs of ``mask`` opened by a k x k square.
+
+    Computed on the box of ``mask``'s nonzero pixels grown by ``k // 2`` (the
+    opening is 0 beyond it: an eroded pixel is a nonzero one), so opening
+    and labelling cost what the dark pixels' box costs, not the whole half
+    frame's; the same blobs, in the same order, as on the whole mask.
+    With ``_blobs``, fast mode's candidate stage on scripts/bench_frontend.py's
+    frames (median of 40): sim 9.0 -> 5.5 ms, hard 9.4 -> 5.2 ms.
+    """
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0 or h == 0:
+        return []
+    g = k // 2
+    x0, y0 = max(x - g, 0), max(y - g, 0)
+    x1, y1 = min(x + w + g, mask.shape[1]), min(y + h + g, mask.shape[0])
+    opened = cv2.morphologyEx(mask[y0:y1, x0:x1], cv2.MORPH_OPEN, np.ones((k, k), np.uint8))
+    return [[bx + x0, by + y0, bw, bh, a] for bx, by, bw, bh, a in _blobs(opened)]
+
+
+def _blobs(mask: np.ndarray) -> list[list[int]]:
+    """(x, y, w, h, area) of the 8-connected blobs of ``mask``, background left out.
+
+    Grana's block-based labelling (``CCL_GRANA``): the same blobs in the same
+    order as ``connectedComponentsWithStats``' default (Bolelli's Spaghetti)
+    on tests/test_detector.py's masks and the 40 opened masks of 20 of the
+    bench's frames, where it took 0.9 against 2.4 ms per 960 x 540 half frame
+    (one thread: the statistics, not the labels, cost the default its time).
+    """
+    _, _, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(
+        mask, 8, cv2.CV_32S, cv2.CCL_GRANA
+    )
+    return stats[1:].tolist()
+
 
 def _as_gray(image: np.ndarray) -> np.ndarray:
     img = np.asarray(image)
@@ -567,10 +605,8 @@ class SignDetector:
         rois: list[tuple[int, int, int, int, float]] = []
         # Opening removes conductors and thin bars, also where they touch a
         # sign; a wider opening frees big signs from thicker (near) conductors.
-        for k in (5, 11):
-            cand = cv2.morphologyEx(dark, cv2.MORPH_OPEN, np.ones((k, k), np.uint8))
-            _, _, stats, _ = cv2.connectedComponentsWithStats(cand, connectivity=8)
-            for bx, by, bw, bh, area in stats[1:].tolist():
+        for k in _OPENINGS:
+            for bx, by, bw, bh, area in _opened_blobs(dark, k):
                 # A disc's blob is compact: it fills its box and is at most ~3:1
                 # (65 degree view); conductors and lattice bars are long and thin.
                 if area < 0.3 * bw * bh or max(bw, bh) > 3 * min(bw, bh) or max(bw, bh) < 3:
@@ -625,9 +661,8 @@ class SignDetector:
         lit = cv2.morphologyEx(
             (low > thr).astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8)
         )
-        _, _, stats, _ = cv2.connectedComponentsWithStats(lit, connectivity=8)
         boxes = []
-        for bx, by, bw, bh, area in stats[1:].tolist():
+        for bx, by, bw, bh, area in _blobs(lit):
             if not min_px <= max(bw, bh) <= max_px or max(bw, bh) > 3 * min(bw, bh):
                 continue
             if area < 0.5 * bw * bh:
