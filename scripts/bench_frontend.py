@@ -34,16 +34,18 @@ also runs the slow reference verification of tests/test_verify_fast.py on
 every timed crop and counts those whose outcome or reading differs.
 
     .venv/bin/python scripts/bench_frontend.py [--quick] [--frames N] [--repeat R] [--json PATH]
-        [--check-verify]
+        [--check-verify] [--profile {fast,track}]
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import cProfile
 import importlib.util
 import json
 import math
+import pstats
 import statistics
 import sys
 import tempfile
@@ -86,7 +88,14 @@ def _scene(kind: str, n: int, sign_map) -> dict:
             cv2.imread(str(Path(tmp) / "frames" / f"{i:06d}.png"), cv2.IMREAD_GRAYSCALE)
             for i in range(settings.frames)
         ]
-    return {"frames": frames, "boxes": boxes, "camera": sim.camera, "preds": {}}
+    return {
+        "frames": frames,
+        "boxes": boxes,
+        "camera": sim.camera,
+        "preds": {},
+        "plans": {},
+        "crops": [],
+    }
 
 
 class _Tracking:
@@ -148,6 +157,7 @@ def _frame_modes(det, aruco, scene, sign_map, repeat):
     for i, f in enumerate(scene["frames"]):
         plans = {m: t.plan(i) for m, t in trackers.items()}
         scene["preds"][i] = plans["track"].predictions
+        scene["plans"][i] = plans["track"]
         calls = {"fast": lambda f=f: det.detect(f, codes, "fast")}
         for m, plan in plans.items():
             if plan.predictions:
@@ -203,6 +213,7 @@ def _crop_times(scene, codes, check=None, other=None) -> dict:
             ms, _ = _cpu_ms(lambda s=s, f=f: decode_region(f, tuple(s["bbox_px"]), codes))
             full.append(ms)
             h = shift @ p.image_H_sign
+            scene["crops"].append((f, h, p.code))
             ms, v = _cpu_ms(lambda p=p, f=f, h=h: verify_sign(f, h, p.code, codes))
             ver.append(ms)
             outcomes[v.outcome.value] += 1
@@ -299,6 +310,52 @@ def _scene_crop_times(n: int, check=None, other=None) -> dict:
     return out | _ab_medians(ab)
 
 
+def _profile(det, scene, codes, mode: str, top: int) -> None:
+    """cProfile of one more pass of ``mode`` (fast, track) over the scene's frames
+    (tracking with the plans the timed pass made): the ``top`` lines by
+    cumulative and by own time. For track also ``verify_sign`` alone on the
+    timed crops: Python-level, numpy and OpenCV calls per verification, and
+    its top lines (where a verification's time goes)."""
+    calls = []
+    for i, f in enumerate(scene["frames"]):
+        plan = scene["plans"][i]
+        if mode == "track" and plan.predictions:
+            calls.append(lambda f=f, p=plan: det.detect_tracked(f, p.predictions, codes, p.refresh))
+        elif mode == "fast":
+            calls.append(lambda f=f: det.detect(f, codes, "fast"))
+    print(f"  profile: {mode} on {len(calls)} frames")
+    _print_profile(_profiled(calls), top)
+    if mode == "track" and scene["crops"]:
+        crops = [lambda c=c: verify_sign(c[0], c[1], c[2], codes) for c in scene["crops"]]
+        stats = _profiled(crops)
+        per = collections.Counter()
+        for (path, _, name), (_, ncalls, *_rest) in stats.stats.items():
+            per["calls"] += ncalls
+            if "numpy" in path or "numpy" in name:
+                per["numpy"] += ncalls
+            elif path == "~" and (name[1:-1].isidentifier() or "'cv2." in name):
+                per["cv2"] += ncalls  # OpenCV's functions show as <name>, its methods by class
+        print(
+            f"  profile: verify_sign on {len(crops)} crops, per verification:",
+            ", ".join(f"{k} {v / len(crops):.0f}" for k, v in per.items()),
+        )
+        _print_profile(stats, top)
+
+
+def _profiled(calls) -> pstats.Stats:
+    prof = cProfile.Profile()
+    prof.enable()
+    for call in calls:
+        call()
+    prof.disable()
+    return pstats.Stats(prof, stream=sys.stdout)
+
+
+def _print_profile(stats: pstats.Stats, top: int) -> None:
+    stats.sort_stats("cumulative").print_stats(top)
+    stats.sort_stats("tottime").print_stats(top)
+
+
 def _med(x) -> float:
     return float(statistics.median(x)) if x else float("nan")
 
@@ -380,6 +437,13 @@ def main(argv: list[str] | None = None) -> int:
         help="another copy of frontend/verify.py (e.g. git show REV:frontend/verify.py > v.py):"
         " its verify_sign timed against this one on every crop, interleaved",
     )
+    ap.add_argument(
+        "--profile",
+        choices=("fast", "track"),
+        default=None,
+        help="after the timing, profile one more pass of this mode (cProfile top lines)",
+    )
+    ap.add_argument("--profile-top", type=int, default=25, help="lines per --profile table")
     args = ap.parse_args(argv)
     check = _reference_check() if args.check_verify else None
     other = _load_verify(args.ab_verify) if args.ab_verify else None
@@ -408,6 +472,8 @@ def main(argv: list[str] | None = None) -> int:
                 t.setdefault(k, 0)
         results["scenes"][name] = res
         _print_scene(name, res, n)
+        if args.profile:
+            _profile(det, scene, codes, args.profile, args.profile_top)
     sc = _scene_crop_times(SCENE_CROPS if not args.quick else 20, check, other)
     results["independent_crops"] = sc
     print(
