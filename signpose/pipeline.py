@@ -40,6 +40,7 @@ folder without a ``complete`` run.json holds no finished run.
 from __future__ import annotations
 
 import contextlib
+import cProfile
 import enum
 import itertools
 import json
@@ -48,8 +49,11 @@ import math
 import multiprocessing
 import multiprocessing.connection as mp_connection
 import os
+import queue
+import resource
 import shutil
 import signal
+import threading
 import time
 import uuid
 from collections import deque
@@ -160,6 +164,13 @@ WORKER_START = "forkserver"
 WORKER_JOIN_S = 2.0
 # A worker's exit code after a MemoryError (its chunk is reported lost, out of memory).
 WORKER_OUT_OF_MEMORY = 75
+# Set to a folder, every chunk and plot process writes into it, per job, what it cost
+# (``<kind>-<pid>-<job>.json``: CPU before the job, i.e. the process's own start, and
+# during it, wall stamps of the job) and, with PROFILE_STATS_ENV also set, the job's
+# cProfile statistics (``.prof``, thread CPU as the clock). For scripts/bench_pipeline.py
+# --profile; nothing is written without it.
+PROFILE_ENV = "SIGNPOSE_PROFILE_DIR"
+PROFILE_STATS_ENV = "SIGNPOSE_PROFILE_STATS"
 
 
 # --------------------------------------------------------------------------- settings / results
@@ -1103,12 +1114,38 @@ def _chunk_worker(conn) -> None:
             conn.send(ChunkFrame(number, obs, tuple(refused), pnp))
 
         try:
-            answer: object = run_chunk(job, send=send)
+            answer: object = _profiled("chunk", job.number, run_chunk, job, send=send)
         except MemoryError:
             os._exit(WORKER_OUT_OF_MEMORY)
         except Exception as exc:  # noqa: BLE001 - raised again in the parent
             answer = exc
         conn.send(answer)
+
+
+def _cpu_s(who: int = resource.RUSAGE_SELF) -> float:
+    usage = resource.getrusage(who)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _profiled(kind: str, number: int, work: Callable[..., object], *args, **kwargs) -> object:
+    """``work(*args, **kwargs)``; with ``PROFILE_ENV`` set, what it cost written into that
+    folder."""
+    folder = os.environ.get(PROFILE_ENV)
+    if not folder:
+        return work(*args, **kwargs)
+    profile = cProfile.Profile(time.thread_time) if os.environ.get(PROFILE_STATS_ENV) else None
+    cpu0, start = _cpu_s(), time.time()
+    try:
+        if profile is None:
+            return work(*args, **kwargs)
+        return profile.runcall(work, *args, **kwargs)
+    finally:
+        stem = Path(folder) / f"{kind}-{os.getpid()}-{number}"
+        record = {"kind": kind, "job": number, "pid": os.getpid(), "cpu_before_s": cpu0}
+        record |= {"cpu_s": _cpu_s() - cpu0, "start": start, "end": time.time()}
+        stem.with_suffix(".json").write_text(json.dumps(record) + "\n", encoding="utf-8")
+        if profile is not None:
+            profile.dump_stats(stem.with_suffix(".prof"))
 
 
 @dataclass
@@ -1131,8 +1168,11 @@ class ChunkProcesses:
         self._context = _process_context()
         self._wanted = workers
         self._workers: list[_Worker] = []
+        self._stopped = False  # by ``stop``: ``run`` ends, no process is started
 
     def _start(self) -> _Worker:
+        if self._stopped:
+            raise RuntimeError("chunk processes stopped")
         mine, theirs = self._context.Pipe()
         process = self._context.Process(
             target=_chunk_worker, args=(theirs,), name="signpose-chunk", daemon=True
@@ -1141,6 +1181,9 @@ class ChunkProcesses:
         theirs.close()
         worker = _Worker(process, mine)
         self._workers.append(worker)
+        if self._stopped:  # by another thread while this one started
+            self.stop()
+            raise RuntimeError("chunk processes stopped")
         return worker
 
     def run(self, jobs: Iterable[ChunkJob]) -> Iterator[ChunkFrame | ChunkResult | LostChunk]:
@@ -1148,7 +1191,7 @@ class ChunkProcesses:
         todo = deque(jobs)
         idle = [self._start() for _ in range(min(self._wanted, len(todo)))]
         busy: list[_Worker] = []
-        while todo or busy:
+        while (todo or busy) and not self._stopped:
             while todo and idle:
                 worker = idle.pop()
                 worker.job = todo.popleft()
@@ -1162,8 +1205,9 @@ class ChunkProcesses:
                 if isinstance(answer, ChunkFrame):
                     busy.append(worker)  # the chunk goes on
                 elif isinstance(answer, LostChunk):
-                    self._workers.remove(worker)
-                    if todo:
+                    with contextlib.suppress(ValueError):  # gone when stopped
+                        self._workers.remove(worker)
+                    if todo and not self._stopped:
                         idle.append(self._start())
                 else:
                     idle.append(worker)
@@ -1207,11 +1251,12 @@ class ChunkProcesses:
         self._workers = []
 
     def stop(self) -> None:
-        """After Ctrl-C: end every process at once."""
-        for worker in self._workers:
+        """After Ctrl-C: end every process at once (``run`` then ends)."""
+        self._stopped = True
+        for worker in list(self._workers):
             with contextlib.suppress(OSError, ValueError):
                 worker.process.kill()
-        for worker in self._workers:
+        for worker in list(self._workers):
             worker.process.join(WORKER_JOIN_S)
         self._workers = []
 
@@ -1280,13 +1325,14 @@ def _merge_in_order(
     answers: Iterable[ChunkFrame | ChunkResult | LostChunk],
     out: _Collected,
     reads: dict[int, RangeRead],
+    following: int = 0,
 ) -> None:
     """The workers' frames into ``out`` in flight order: the earliest unfinished chunk's
-    as they come, the later chunks' once every chunk before them is done."""
+    as they come, the later chunks' once every chunk before them is done. ``following``:
+    the first chunk the answers hold (those before it are in ``out``)."""
     done: dict[int, ChunkResult | LostChunk] = {}
     early: dict[int, list[ChunkFrame]] = {}
     last_position: dict[int, int] = {}
-    following = 0
     for answer in answers:
         if isinstance(answer, ChunkFrame):
             last_position[answer.number] = answer.obs.frame
@@ -1334,26 +1380,76 @@ def _observe_chunks(
 ) -> list[RangeRead]:
     """Every chunk, in processes or inline; frames streamed in flight order as chunks finish.
 
-    Raises:
-        RuntimeError: every chunk's process died (nothing was observed).
+    With processes, this one observes the first chunk itself while they start
+    (the forkserver imports the pipeline first: ~1 s CPU) and observe the
+    others; a thread takes their frames meanwhile, so no process waits on a
+    full pipe. ``workers`` processes and this one observe at once: on 2 cores
+    and a 300-frame flight (3 chunks) no core idles while the last chunk is
+    observed alone, as it did with 2 processes and 3 chunks.
     """
     if workers <= 1 or det is not None or len(jobs) == 1:
         if det is None:
             det = jobs[0].make(jobs[0].settings)
         return [run_chunk(job, det, out, source).read for job in jobs]
-    reads: dict[int, RangeRead] = {}
     pool = ChunkProcesses(workers)
+    answers = _AnswerThread(pool, jobs[1:])
     try:
-        _merge_in_order(pool.run(jobs), out, reads)
+        first = run_chunk(jobs[0], jobs[0].make(jobs[0].settings), out, source)
+        reads = {0: first.read}
+        _merge_in_order(answers, out, reads, following=1)
     except BaseException:
-        pool.stop()
+        answers.stop()
         raise
+    answers.join()
     pool.close()
-    if not reads:
-        raise RuntimeError(
-            f"{source.path}: every process observing the flight died ({out.lost[0].reason})"
-        )
     return [reads[k] for k in sorted(reads)]
+
+
+class _AnswerThread:
+    """A thread that takes the chunk processes' answers as they come (``ChunkProcesses.run``),
+    for this process to merge when it is ready; iterating gives them in that order, and
+    raises what the thread met."""
+
+    _END = object()
+
+    def __init__(self, pool: ChunkProcesses, jobs: list[ChunkJob]) -> None:
+        self._pool = pool
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(
+            target=self._take, args=(jobs,), name="signpose-chunk-answers", daemon=True
+        )
+        self._thread.start()
+
+    def _take(self, jobs: list[ChunkJob]) -> None:
+        try:
+            for answer in self._pool.run(jobs):
+                self._queue.put(answer)
+        except BaseException as exc:  # noqa: BLE001 - raised again where it is merged
+            self._queue.put(_Raised(exc))
+            return
+        self._queue.put(self._END)
+
+    def __iter__(self) -> Iterator[ChunkFrame | ChunkResult | LostChunk]:
+        while True:
+            item = self._queue.get()
+            if item is self._END:
+                return
+            if isinstance(item, _Raised):
+                raise item.exc
+            yield item
+
+    def join(self) -> None:
+        self._thread.join()
+
+    def stop(self) -> None:
+        """After Ctrl-C or an error: end the processes; the thread then ends (a process
+        it was starting meanwhile is ended once started)."""
+        self._pool.stop()
+
+
+@dataclass(frozen=True)
+class _Raised:
+    exc: BaseException
 
 
 def _observe_in_order(
@@ -1852,7 +1948,7 @@ def _plot_worker(conn) -> None:
     if job is None:
         return
     try:
-        answer: object = _draw(job)
+        answer: object = _profiled("plots", len(job), _draw, job)
     except Exception as exc:  # noqa: BLE001 - raised again in the parent
         answer = exc
     conn.send(answer)
