@@ -23,10 +23,17 @@ box in raw pixels through the lens, the share of its disc hidden):
   recall: drawn signs >= 18 px, whole in the image, with no observation;
 * keypoint honesty: rms(error / keypoint_sigma_px) of the centre keypoints
   against their true raw-pixel projections, per image axis;
-* report.json's ``pixel_noise_scale``.
+* report.json's ``pixel_noise_scale``;
+* with ``--surveys K``: the same observations estimated (``signpose estimate``)
+  against K more survey draws of the map, pooled: every frame of a flight
+  shares its map's error, so only several draws say whether the sigmas carry
+  the survey's share;
+* with ``--drop-lens-model``: the same observations estimated with camera.yaml's
+  distortion dropped (a wrong calibration): does signpose notice?
 
     nice -n 5 .venv/bin/python scripts/eval_flight.py [--quick] [--work DIR] [--json PATH]
-        [--flights NAME ...] [--without lens jpeg vibration pan members] [--rerun]
+        [--flights NAME ...] [--without lens jpeg vibration pan members] [--surveys K]
+        [--drop-lens-model] [--rerun]
 
 The default set (4 flights of 240 frames at 1280x720 and one of 150 at
 1920x1080) takes about 5-10 min on 2 cores; ``--quick`` 2 flights of 60
@@ -52,6 +59,7 @@ from independent_flight import main as draw_flight
 from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map, write_map
 
 from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.io.camera_file import load_camera, write_camera_info
 
 SCRIPTS = Path(__file__).resolve().parent
 MIN_RECALL_PX = 18.0  # signs at least this wide count for the recall
@@ -59,6 +67,8 @@ GAUSS_BEYOND_3 = 1 - (1 - 0.0027) ** 3  # share of 3-D Gaussian errors beyond 3 
 STATUSES = ("ok", "weak", "bridged", "suspect")
 AXES = "xyz"
 SIZE_BINS_PX = (18.0, 30.0, 60.0, math.inf)
+# Share of a sign's disc an occluder hides: (name, above, at most).
+HIDDEN_BINS = (("none", -1.0, 0.0), ("<=10%", 0.0, 0.1), ("10-25%", 0.1, 0.25), (">25%", 0.25, 1.0))
 
 
 @dataclass(frozen=True)
@@ -247,8 +257,13 @@ class CodeCheck:
         observed: observations read.
         wrong: (frame, code, box width [px], what it was) of each observation
             whose code has no drawn sign with its centre in its box; ``what``
-            names the drawn sign whose centre is there ("misread 0101") or "false".
+            names the drawn sign whose centre is there ("misread 0101"), "false",
+            or "box off its sign" (its centre keypoint on the drawn sign of its
+            code, its box beside it: a right code with a wrong box; its
+            keypoints are graded).
         visible: drawn signs >= MIN_RECALL_PX, whole in the image.
+        visible_unhidden: those of them no occluder touches.
+        visible_hidden: the share of the disc hidden of each visible sign.
         missed: (frame, code, diameter [px], hidden share) of those not observed.
         keypoints: kind ("center", "direction", "slot") -> rows of (error / its
             sigma u, v, error u, v [px], hidden share of the sign, error along
@@ -259,6 +274,8 @@ class CodeCheck:
     observed: int = 0
     wrong: list[tuple] = field(default_factory=list)
     visible: int = 0
+    visible_unhidden: int = 0
+    visible_hidden: list[float] = field(default_factory=list)
     missed: list[tuple] = field(default_factory=list)
     keypoints: dict[str, list] = field(default_factory=dict)
 
@@ -284,6 +301,13 @@ def _keypoint_rows(o: dict, t: dict, size: tuple[int, int], check: CodeCheck) ->
         check.keypoints.setdefault(_kind(name), []).append(row)
 
 
+def _on_sign(o: dict, t: dict) -> bool:
+    """The observation's centre keypoint lies on the drawn sign ``t`` (within a quarter
+    of its diameter of the true centre)."""
+    d = np.subtract(o["keypoints_px"]["center"], t["center_px"])
+    return bool(np.hypot(*d) <= 0.25 * t["diameter_px"])
+
+
 def check_frame(obs: dict, truth: dict, check: CodeCheck) -> None:
     """Grade one observations.jsonl line against its drawn signs (``truth.jsonl`` line)."""
     drawn = {s["code"]: s for s in truth["signs"]}
@@ -294,13 +318,18 @@ def check_frame(obs: dict, truth: dict, check: CodeCheck) -> None:
         if t is None or not _inside(t["center_px"], o["bbox_px"]):
             there = [s["code"] for s in truth["signs"] if _inside(s["center_px"], o["bbox_px"])]
             what = f"misread {there[0]}" if there else "false"
+            if t is not None and _on_sign(o, t):
+                what = "box off its sign"  # the right sign's keypoints, a box beside it
             check.wrong.append((obs["frame"], o["code"], round(float(o["bbox_px"][2]), 1), what))
-            continue
+            if t is None or not _on_sign(o, t):
+                continue
         seen.add(o["code"])
         _keypoint_rows(o, t, tuple(obs["image_size"]), check)
     for t in truth["signs"]:
         if t["inside"] and t["diameter_px"] >= MIN_RECALL_PX:
             check.visible += 1
+            check.visible_unhidden += t["hidden"] == 0.0
+            check.visible_hidden.append(t["hidden"])
             if t["code"] not in seen:
                 check.missed.append((obs["frame"], t["code"], t["diameter_px"], t["hidden"]))
 
@@ -339,21 +368,36 @@ def keypoint_summary(check: CodeCheck) -> dict[str, dict]:
     return out
 
 
+def _recall(hidden: list[float], missed: list[tuple], lo: float, hi: float) -> list:
+    """[visible, found, recall] of the signs whose hidden share h has lo < h <= hi."""
+    n = sum(lo < h <= hi for h in hidden)
+    found = n - sum(lo < m[3] <= hi for m in missed)
+    return [n, found, round(found / n, 3) if n else None]
+
+
 def code_summary(check: CodeCheck) -> dict:
     missed_clear = [m for m in check.missed if m[3] == 0.0]
     bins = {}
     for lo, hi in zip(SIZE_BINS_PX, SIZE_BINS_PX[1:], strict=False):
         n_miss = sum(lo <= m[2] < hi for m in check.missed)
         bins[f"{lo:g}-{hi:g}px"] = n_miss
+    box_off = sum(w[3] == "box off its sign" for w in check.wrong)
     return {
         "observed": check.observed,
         "wrong": len(check.wrong),
+        "box_off_its_sign": box_off,
+        "wrong_codes": len(check.wrong) - box_off,
         "wrong_list": check.wrong,
         "visible": check.visible,
         "missed": len(check.missed),
         "missed_unhidden": len(missed_clear),
         "recall": round(1 - len(check.missed) / check.visible, 4) if check.visible else None,
         "missed_by_size": bins,
+        "recall_by_hidden": {
+            name: _recall(check.visible_hidden, check.missed, lo, hi)
+            for name, lo, hi in HIDDEN_BINS
+        },
+        "visible_unhidden": check.visible_unhidden,
     }
 
 
@@ -362,18 +406,13 @@ def pose_metrics(trajectory_csv: Path, gt: np.ndarray, n_frames: int) -> dict[st
 
     Rows match the ground truth by frame index; their ``t_s`` must be the truth's.
     """
-    rows: dict[str, list[dict]] = {}
-    with open(trajectory_csv, newline="") as f:
-        for r in csv.DictReader(f):
-            rows.setdefault(r["method"], []).append(r)
-    out = {}
-    for method, rs in rows.items():
-        out[method] = _method_metrics(rs, gt, n_frames)
-    return out
+    return {
+        m: _method_metrics(rs, gt, n_frames) for m, rs in _rows_by_method(trajectory_csv).items()
+    }
 
 
 def _method_metrics(rows: list[dict], gt: np.ndarray, n_frames: int) -> dict:
-    errs, z, ok, clock = [], [], [], 0.0
+    errs, z, ok, clock, ok_err = [], [], [], 0.0, [0.0]
     status = dict.fromkeys(STATUSES, 0)
     for r in rows:
         status[r["status"]] = status.get(r["status"], 0) + 1
@@ -383,6 +422,8 @@ def _method_metrics(rows: list[dict], gt: np.ndarray, n_frames: int) -> dict:
         clock = max(clock, abs(float(r["t_s"]) - g[0]))
         e = np.array([float(r[f"{a}_m"]) for a in AXES]) - g[1:4]
         errs.append(e)
+        if r["status"] == "ok":
+            ok_err.append(float(np.linalg.norm(e)))
         if r["sigma_x_m"] != "":
             z.append(e / np.array([float(r[f"sigma_{a}_m"]) for a in AXES]))
             ok.append(r["status"] == "ok")
@@ -400,16 +441,126 @@ def _method_metrics(rows: list[dict], gt: np.ndarray, n_frames: int) -> dict:
         "rms_z_xyz": np.sqrt(np.mean(zz**2, axis=0)).round(3).tolist() if len(zz) else None,
         "ok": int(okk.sum()),
         "ok_beyond_3sigma": int(bad.sum()),
+        "ok_max_m": round(max(ok_err), 4),
         "ok_worst_z": round(float(np.abs(zz[okk]).max()), 2) if okk.any() else None,
         "clock_diff_s": clock,
+    }
+
+
+def estimate_argv(flight: Path, observations: Path, given_map: Path, out: Path) -> list[str]:
+    """``signpose estimate``'s arguments: the same observations against another map."""
+    return [
+        "estimate", str(observations), "--map", str(given_map),
+        "--camera", str(flight / "camera.yaml"), "--out", str(out), "--method", "all", "-q",
+    ]  # fmt: skip
+
+
+def survey_draws(spec: FlightSpec, work: Path, draws: int, rerun: bool) -> dict:
+    """The flight's observations estimated against ``draws`` more survey draws of its map.
+
+    All frames of one flight share its map's error, so one draw says little about
+    whether the sigmas carry the survey's share; pooled over draws it does.
+    Returns method -> {"z": (N, 3) error / sigma, "ok": (N,) status ok, "mean_err_m": per draw}.
+    """
+    d = work / spec.name
+    flight, gt = d / "flight", read_gt(d / "flight" / "groundtruth.tum")
+    pooled: dict[str, dict[str, list]] = {}
+    for j in range(draws):
+        given = d / f"map_survey_{j}.yaml"
+        surveyed_map(d / "map_true.yaml", given, 1000 * spec.options.seed + j)
+        out = d / f"survey_{j}"
+        argv = estimate_argv(flight, d / "out" / "observations.jsonl", given, out)
+        ran = run_signpose(argv, d / f"survey_{j}.json", rerun)
+        if ran["exit"] != 0:
+            raise SystemExit(f"signpose {' '.join(argv)} exited {ran['exit']}: {ran['stderr']}")
+        for method, rows in _rows_by_method(out / "trajectory.csv").items():
+            z, ok, e = _normalised(rows, gt)
+            p = pooled.setdefault(method, {"z": [], "ok": [], "mean_err_m": []})
+            p["z"].append(z)
+            p["ok"].append(ok)
+            p["mean_err_m"].append(np.round(e.mean(axis=0), 4).tolist() if len(e) else None)
+    return {
+        m: {
+            "z": np.concatenate(v["z"]),
+            "ok": np.concatenate(v["ok"]),
+            "mean_err_m": v["mean_err_m"],
+        }
+        for m, v in pooled.items()
+    }
+
+
+def _rows_by_method(trajectory_csv: Path) -> dict[str, list[dict]]:
+    rows: dict[str, list[dict]] = {}
+    with open(trajectory_csv, newline="") as f:
+        for r in csv.DictReader(f):
+            rows.setdefault(r["method"], []).append(r)
+    return rows
+
+
+def _normalised(rows: list[dict], gt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """((N, 3) error / sigma, (N,) ok, (M, 3) errors [m] of every posed row)."""
+    z, ok, errs = [], [], []
+    for r in rows:
+        if r["x_m"] == "":
+            continue
+        e = np.array([float(r[f"{a}_m"]) for a in AXES]) - gt[int(r["frame"]), 1:4]
+        errs.append(e)
+        if r["sigma_x_m"] != "":
+            z.append(e / np.array([float(r[f"sigma_{a}_m"]) for a in AXES]))
+            ok.append(r["status"] == "ok")
+    return (
+        np.asarray(z, float).reshape(-1, 3),
+        np.asarray(ok, bool),
+        np.asarray(errs, float).reshape(-1, 3),
+    )
+
+
+def survey_summary(pooled: dict) -> dict:
+    out = {}
+    for m, v in pooled.items():
+        z, ok = v["z"], v["ok"]
+        bad = ok & (np.abs(z) > 3).any(axis=1) if len(z) else ok
+        out[m] = {
+            "n": len(z),
+            "rms_z_xyz": np.sqrt(np.mean(z**2, axis=0)).round(3).tolist() if len(z) else None,
+            "ok": int(ok.sum()),
+            "ok_beyond_3sigma": int(bad.sum()),
+            "mean_err_m_per_draw": v["mean_err_m"],
+        }
+    return out
+
+
+def without_lens(flight: Path, d: Path, rerun: bool) -> dict | None:
+    """The flight's observations estimated with camera.yaml's distortion dropped (a user's
+    wrong calibration): does signpose notice, or label wrong poses ``ok``?"""
+    camera = load_camera(flight / "camera.yaml")
+    if not camera.has_distortion:
+        return None
+    pinhole = d / "camera_without_lens.yaml"
+    write_camera_info(pinhole, replace(camera, dist=np.zeros_like(camera.dist)))
+    out = d / "without_lens"
+    argv = estimate_argv(flight, d / "out" / "observations.jsonl", d / "map_surveyed.yaml", out)
+    argv[argv.index("--camera") + 1] = str(pinhole)
+    ran = run_signpose(argv, d / "without_lens.json", rerun)
+    if ran["exit"] != 0:
+        return {"exit": ran["exit"], "stderr": ran["stderr"].strip(), "command": argv}
+    report = json.loads((out / "report.json").read_text())
+    n = len(read_jsonl(d / "out" / "observations.jsonl"))
+    return {
+        "command": "nice -n 5 .venv/bin/signpose " + " ".join(argv),
+        "pixel_noise_scale": report.get("pixel_noise_scale"),
+        "methods": pose_metrics(out / "trajectory.csv", read_gt(flight / "groundtruth.tum"), n),
     }
 
 
 # --------------------------------------------------------------------------- one flight
 
 
-def evaluate(spec: FlightSpec, work: Path, rerun: bool) -> dict:
-    """Draw, run and grade one flight."""
+def evaluate(
+    spec: FlightSpec, work: Path, rerun: bool, draws: int = 0, lensless: bool = False
+) -> dict:
+    """Draw, run and grade one flight (and estimate it against ``draws`` more surveys,
+    and with ``lensless`` without its lens model)."""
     flight, draw, run = prepare(spec, work, rerun)
     out = work / spec.name / "out"
     ran = run_signpose(run, work / spec.name / "ran.json", rerun)
@@ -437,6 +588,10 @@ def evaluate(spec: FlightSpec, work: Path, rerun: bool) -> dict:
         "keypoints": keypoint_summary(check),
         "methods": pose_metrics(out / "trajectory.csv", gt, spec.frames),
     }
+    if draws:
+        result["surveys"] = survey_summary(survey_draws(spec, work, draws, rerun))
+    if lensless:
+        result["without_lens"] = without_lens(flight, work / spec.name, rerun)
     return result
 
 
@@ -460,7 +615,7 @@ def _print_methods(methods: dict) -> None:
         print(
             f"  {m:<9}{_fmt(r['rmse_m']):>8}{_fmt(r['max_m']):>8}{100 * r['coverage']:6.1f}%"
             f"{shares}  {rz:<20}{r['ok_beyond_3sigma']} of {r['ok']}{frac}"
-            f"  worst ok {_fmt(r['ok_worst_z'], '.1f')} sig"
+            f"  worst ok {_fmt(r['ok_worst_z'], '.1f')} sig, {r['ok_max_m']:.3f} m"
         )
 
 
@@ -473,10 +628,13 @@ def print_flight(r: dict) -> None:
         return
     c, k = r["codes"], r["keypoints"]
     print(
-        f"  pixel_noise_scale {r['pixel_noise_scale']}; observed {c['observed']}, wrong codes "
-        f"{c['wrong']}; visible >= {MIN_RECALL_PX:g} px {c['visible']}, missed {c['missed']} "
-        f"(unhidden {c['missed_unhidden']}; by size {c['missed_by_size']}), recall "
-        f"{_fmt(c['recall'], '.1%')}"
+        f"  pixel_noise_scale {r['pixel_noise_scale']}; observed {c['observed']}, no drawn sign "
+        f"of the code in the box {c['wrong']} (wrong codes {c['wrong_codes']}, right sign with "
+        f"the box beside it {c['box_off_its_sign']});\n  visible >= {MIN_RECALL_PX:g} px "
+        f"{c['visible']} (unhidden "
+        f"{c['visible_unhidden']}), missed {c['missed']}, recall {_fmt(c['recall'], '.1%')}; "
+        f"missed by size {c['missed_by_size']};\n  recall by hidden share [visible, found, "
+        f"recall] {c['recall_by_hidden']}"
     )
     for w in c["wrong_list"][:10]:
         print(f"    wrong: frame {w[0]} code {w[1]} box {w[2]} px: {w[3]}")
@@ -488,6 +646,20 @@ def print_flight(r: dict) -> None:
             f"{_fmt(v['radial_bias_outer_px'], '+.3f')} px"
         )
     _print_methods(r["methods"])
+    wl = r.get("without_lens")
+    if wl and "methods" in wl:
+        print(f"  the same observations with camera.yaml's distortion dropped: pixel_noise_scale "
+              f"{wl['pixel_noise_scale']:.3f}\n    $ {wl['command']}")  # fmt: skip
+        _print_methods(wl["methods"])
+    elif wl:
+        print(f"  without the lens model: exited {wl['exit']}: {wl['stderr']}")
+    for m, v in r.get("surveys", {}).items():
+        if v["n"]:
+            print(
+                f"  {m:<9}over {len(v['mean_err_m_per_draw'])} more survey draws: rms(e/sigma) "
+                f"x y z {v['rms_z_xyz']}, ok beyond 3 sigma {v['ok_beyond_3sigma']} of "
+                f"{v['ok']}; mean error per draw [m] {v['mean_err_m_per_draw']}"
+            )
 
 
 def pooled(results: list[dict]) -> dict:
@@ -496,37 +668,67 @@ def pooled(results: list[dict]) -> dict:
     out = {
         "flights": len(results),
         "failed": [r["name"] for r in results if "methods" not in r],
-        "wrong_codes": sum(r["codes"]["wrong"] for r in ran),
+        "no_sign_in_box": sum(r["codes"]["wrong"] for r in ran),
+        "wrong_codes": sum(r["codes"]["wrong_codes"] for r in ran),
+        "box_off_its_sign": sum(r["codes"]["box_off_its_sign"] for r in ran),
         "observed": sum(r["codes"]["observed"] for r in ran),
         "visible": sum(r["codes"]["visible"] for r in ran),
         "missed": sum(r["codes"]["missed"] for r in ran),
         "missed_unhidden": sum(r["codes"]["missed_unhidden"] for r in ran),
+        "visible_unhidden": sum(r["codes"]["visible_unhidden"] for r in ran),
         "noise_scales": [r["pixel_noise_scale"] for r in ran],
+        "recall_by_hidden": {},
     }
+    for name, _, _ in HIDDEN_BINS:
+        n = sum(r["codes"]["recall_by_hidden"][name][0] for r in ran)
+        found = sum(r["codes"]["recall_by_hidden"][name][1] for r in ran)
+        out["recall_by_hidden"][name] = [n, found, round(found / n, 3) if n else None]
     for m in ("baseline", "pnp", "smoothed"):
         rs = [r["methods"][m] for r in ran if m in r["methods"]]
         out[m] = {
             "rmse_m": [x["rmse_m"] for x in rs],
             "ok": sum(x["ok"] for x in rs),
             "ok_beyond_3sigma": sum(x["ok_beyond_3sigma"] for x in rs),
+            "ok_max_m": max((x["ok_max_m"] for x in rs), default=None),
         }
+        sv = [r["surveys"][m] for r in ran if m in r.get("surveys", {}) and r["surveys"][m]["n"]]
+        if sv:
+            n = sum(v["n"] for v in sv)
+            ms = sum(v["n"] * np.square(v["rms_z_xyz"]) for v in sv) / n
+            out[m]["surveys"] = {
+                "n": n,
+                "rms_z_xyz": np.sqrt(ms).round(3).tolist(),
+                "ok": sum(v["ok"] for v in sv),
+                "ok_beyond_3sigma": sum(v["ok_beyond_3sigma"] for v in sv),
+            }
     return out
 
 
 def print_summary(s: dict) -> None:
     print(f"\n== summary over {s['flights']} flights (failed: {s['failed'] or 'none'})")
     print(
-        f"  wrong codes {s['wrong_codes']} of {s['observed']} observations; missed "
+        f"  no drawn sign of the code in the box: {s['no_sign_in_box']} of {s['observed']} "
+        f"observations (wrong codes {s['wrong_codes']}, right sign with the box beside it "
+        f"{s['box_off_its_sign']}); missed "
         f"{s['missed']} of {s['visible']} visible signs >= {MIN_RECALL_PX:g} px "
-        f"(unhidden {s['missed_unhidden']}); pixel_noise_scale {s['noise_scales']}"
+        f"(unhidden: {s['missed_unhidden']} of {s['visible_unhidden']}); pixel_noise_scale "
+        f"{s['noise_scales']}"
     )
+    print(f"  recall by hidden share [visible, found, recall] {s['recall_by_hidden']}")
     for m in ("baseline", "pnp", "smoothed"):
         r = s[m]
         frac = 100 * r["ok_beyond_3sigma"] / r["ok"] if r["ok"] else 0.0
         print(
             f"  {m:<9} RMSE m {r['rmse_m']}; ok beyond 3 sigma {r['ok_beyond_3sigma']} of "
-            f"{r['ok']} ({frac:.1f}%, Gaussian {100 * GAUSS_BEYOND_3:.1f}%)"
+            f"{r['ok']} ({frac:.1f}%, Gaussian {100 * GAUSS_BEYOND_3:.1f}%); worst ok "
+            f"{_fmt(r['ok_max_m'])} m"
         )
+        if "surveys" in r:
+            v = r["surveys"]
+            print(
+                f"  {'':<9} more survey draws, pooled: rms(e/sigma) x y z {v['rms_z_xyz']}, "
+                f"ok beyond 3 sigma {v['ok_beyond_3sigma']} of {v['ok']}"
+            )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -539,6 +741,14 @@ def main(argv: list[str] | None = None) -> int:
         "--without", nargs="+", choices=tuple(ABLATIONS), default=[],
         help="take these conditions off every flight (names get -no_X)",
     )  # fmt: skip
+    ap.add_argument(
+        "--surveys", type=int, default=0,
+        help="also estimate each flight against this many more survey draws of its map",
+    )  # fmt: skip
+    ap.add_argument(
+        "--drop-lens-model", action="store_true",
+        help="also estimate each distorted flight with camera.yaml's distortion dropped",
+    )  # fmt: skip
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     specs = QUICK_SET if args.quick else DEFAULT_SET
@@ -549,7 +759,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"flights in {work}")
     results = []
     for spec in specs:
-        results.append(evaluate(spec, work, args.rerun))
+        results.append(evaluate(spec, work, args.rerun, args.surveys, args.drop_lens_model))
         print_flight(results[-1])
     summary = pooled(results)
     print_summary(summary)

@@ -1,0 +1,162 @@
+"""scripts/eval_flight.py's grading and scripts/independent_flight.py's lens, on a tiny flight.
+
+The flight (20 frames at 640x360, plumb_bob k1 -0.33, 14 m from the signs) is
+drawn once per module; every check compares the drawing's own truth with an
+independent reading of it: signpose's camera model for the lens, signpose's
+frontend for the centres, and copies of the frontend's observations with a
+code swapped for the wrong-code counter.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from signpose.estimator.camera import pixel_from_world_point, undistort_px
+from signpose.estimator.trajectory import rotation_from_quat_xyzw
+from signpose.maps.loader import bundled_map_path, load_map
+
+from signpose.cli import main as signpose
+from signpose.io.camera_file import load_camera
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+LENS = (-0.33, 0.12, -0.0004, 0.0003)
+SIZE = (640, 360)
+
+
+@pytest.fixture(scope="module")
+def scripts():
+    sys.path.insert(0, str(SCRIPTS))
+    try:
+        import eval_flight
+        import independent_flight
+    finally:
+        sys.path.remove(str(SCRIPTS))
+    return independent_flight, eval_flight
+
+
+@pytest.fixture(scope="module")
+def flight(scripts, tmp_path_factory):
+    """(folder, observations.jsonl) of the tiny distorted flight, drawn and observed once."""
+    independent_flight, _ = scripts
+    out = tmp_path_factory.mktemp("eval_flight")
+    options = independent_flight.FlightOptions(
+        dist=LENS, jpeg=(70, 90), pan_deg=20.0, distance_m=14.0, truth=True
+    )
+    independent_flight.write_flight(out, 20, *SIZE, seed=5, options=options)
+    obs = out / "observations.jsonl"
+    code = signpose(
+        ["observe", str(out / "video.mp4"), "--map", str(bundled_map_path()),
+         "--camera", str(out / "camera.yaml"), "--out", str(obs), "--workers", "1", "-q"]
+    )  # fmt: skip
+    assert code == 0
+    return out, obs
+
+
+def _read(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line]
+
+
+def test_the_lens_round_trips_through_the_camera_model(scripts, flight):
+    """A pinhole pixel distorted by the drawing and undistorted by signpose comes back,
+    and each raw pixel of the drawing samples the canvas where signpose says it should."""
+    independent_flight, _ = scripts
+    camera = load_camera(flight[0] / "camera.yaml")
+    assert np.allclose(camera.dist[:4], LENS)
+    vv, uu = np.mgrid[0 : SIZE[1] : 7, 0 : SIZE[0] : 7]
+    ideal = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(float)
+    raw = independent_flight.raw_from_pinhole_px(camera.K, LENS, ideal)
+    assert np.abs(raw - ideal).max() > 20  # the lens bends by tens of pixels at the edges
+    assert np.abs(undistort_px(camera, raw) - ideal).max() < 0.05
+    lens = independent_flight.make_lens(camera.K, LENS, *SIZE)
+    offset = lens.canvas_K[:2, 2] - camera.K[:2, 2]
+    sampled = np.stack([lens.map_x[vv, uu].ravel(), lens.map_y[vv, uu].ravel()], axis=1)
+    assert np.abs(sampled - offset - undistort_px(camera, ideal)).max() < 0.05
+
+
+def test_the_truth_is_where_signpose_projects_the_map(flight):
+    """truth.jsonl's keypoints are the map's, projected by signpose through camera.yaml."""
+    out, _ = flight
+    camera = load_camera(out / "camera.yaml")
+    gt = np.loadtxt(out / "groundtruth.tum", comments="#", ndmin=2)
+    signs = {s.code: s for s in load_map(bundled_map_path()).signs}
+    worst, n = 0.0, 0
+    for line in _read(out / "truth.jsonl"):
+        world_T_cam = np.eye(4)
+        world_T_cam[:3, :3] = rotation_from_quat_xyzw(gt[line["frame"], 4:8])[0]
+        world_T_cam[:3, 3] = gt[line["frame"], 1:4]
+        for t in line["signs"]:
+            names, points = zip(*signs[t["code"]].keypoints_world().items(), strict=True)
+            px, _ = pixel_from_world_point(camera, world_T_cam, np.array(points))
+            truth = np.array([t["keypoints_px"][name] for name in names])
+            worst, n = max(worst, float(np.abs(px - truth).max())), n + len(names)
+    assert n > 100
+    assert worst < 0.05
+
+
+def test_the_frontends_centres_lie_on_the_truth(scripts, flight):
+    """Every right code's centre within 1 px of the truth (a lens the truth got wrong
+    would put the signs near the edges tens of pixels off)."""
+    _, eval_flight = scripts
+    out, obs = flight
+    check = eval_flight.check_codes(_read(obs), _read(out / "truth.jsonl"))
+    centres = np.asarray(check.keypoints["center"], float)
+    assert len(centres) >= 20
+    assert np.abs(centres[:, 2:4]).max() < 1.0
+    assert (centres[:, 6] > 0.5).any()  # some of them in the outer half of the image
+
+
+def test_a_swapped_code_a_false_sign_and_a_moved_box_are_told_apart(scripts, flight, tmp_path):
+    _, eval_flight = scripts
+    out, obs = flight
+    truth = _read(out / "truth.jsonl")
+    frames = _read(obs)
+    before = eval_flight.check_codes(frames, truth)
+    i, j, k = [n for n, f in enumerate(frames) if f["signs"]][:3]
+    changed = json.loads(json.dumps(frames))
+    # Frame i: one observation's code swapped for another code drawn in that frame.
+    victim = changed[i]["signs"][0]
+    other = next(
+        s["code"] for s in truth[frames[i]["frame"]]["signs"] if s["code"] != victim["code"]
+    )
+    true_code, victim["code"] = victim["code"], other
+    # Frame j: an observation moved, box and keypoints, into the corner where no sign is.
+    changed[j]["signs"][0]["bbox_px"] = [0.0, 0.0, 3.0, 3.0]
+    changed[j]["signs"][0]["keypoints_px"] = {"center": [1.5, 1.5]}
+    # Frame k: only the box moved off the sign its keypoints are on.
+    changed[k]["signs"][0]["bbox_px"] = [0.0, 0.0, 3.0, 3.0]
+    copy = tmp_path / "observations.jsonl"
+    copy.write_text("".join(json.dumps(f) + "\n" for f in changed))
+    after = eval_flight.check_codes(_read(copy), truth)
+    new = {w[0]: w[3] for w in set(after.wrong) - set(before.wrong)}
+    assert len(after.wrong) == len(before.wrong) + 3
+    assert new == {
+        frames[i]["frame"]: f"misread {true_code}",
+        frames[j]["frame"]: "false",
+        frames[k]["frame"]: "box off its sign",
+    }
+    summary = eval_flight.code_summary(after)
+    assert summary["wrong_codes"] == eval_flight.code_summary(before)["wrong_codes"] + 2
+
+
+def test_ok_poses_beyond_3_sigma_are_counted(scripts, flight, tmp_path):
+    """A trajectory.csv equal to the truth but for one ok frame 4 sigma off in y."""
+    _, eval_flight = scripts
+    gt = np.loadtxt(flight[0] / "groundtruth.tum", comments="#", ndmin=2)
+    path = tmp_path / "trajectory.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["method", "frame", "t_s", "x_m", "y_m", "z_m", "sigma_x_m", "sigma_y_m",
+                    "sigma_z_m", "status"])  # fmt: skip
+        for k, row in enumerate(gt):
+            y = row[2] + (0.04 if k == 3 else 0.0)
+            w.writerow(["smoothed", k, row[0], row[1], y, row[3], 0.01, 0.01, 0.01, "ok"])
+        w.writerow(["smoothed", len(gt), len(gt) / 30, "", "", "", "", "", "", "bridged"])
+    m = eval_flight.pose_metrics(path, gt, len(gt) + 1)["smoothed"]
+    assert (m["ok"], m["ok_beyond_3sigma"], m["posed"]) == (len(gt), 1, len(gt))
+    assert m["max_m"] == pytest.approx(0.04)
+    assert m["status"]["bridged"] == pytest.approx(1 / (len(gt) + 1), abs=1e-4)
