@@ -364,18 +364,24 @@ def plot_signs_per_frame(path: str | os.PathLike, data: PlotData) -> Path:
 
 
 def _status_band(ax, t: np.ndarray, tokens: tuple[str, ...], name: str) -> None:
-    """One coloured cell per frame: the status of ``name``'s pose, shares in the title."""
+    """One coloured cell per frame: the status of ``name``'s pose, shares in the title.
+
+    Neighbouring cells of one status are one bar (a bar per frame was 300 patches on a
+    300-frame flight, half the plot's time; the same band without the seams between cells).
+    """
     edges = _cell_edges(t)
+    shown = [x if x in STATUS_COLORS else NO_POSE for x in tokens]
+    starts = [k for k in range(len(shown)) if k == 0 or shown[k] != shown[k - 1]]
+    ends = [*starts[1:], len(shown)]
+    run_token = np.array([shown[k] for k in starts], dtype=object)
+    left, right = edges[starts], edges[ends]
     for token, c in (*STATUS_COLORS.items(), (NO_POSE, _NO_POSE_COLOR)):
-        if token == NO_POSE:
-            sel = np.array([x not in STATUS_COLORS for x in tokens])
-        else:
-            sel = np.array([x == token for x in tokens])
+        sel = run_token == token
         if np.any(sel):
             ax.bar(
-                edges[:-1][sel],
+                left[sel],
                 1.0,
-                width=np.diff(edges)[sel],
+                width=(right - left)[sel],
                 align="edge",
                 color=c,
                 edgecolor="none",

@@ -5,12 +5,15 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from matplotlib.image import imread
 from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import bundled_map_path, load_map
 
+from signpose import plots
 from signpose.plots import PlotData, plot_errors, write_plots
 
 PLOT_NAMES = ["errors.png", "signs_per_frame.png", "trajectory_3d.png", "views.png"]
@@ -80,3 +83,49 @@ def test_plots_do_not_load_pyplot():
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=Path.cwd()
     )
     assert out.stdout.strip() == "False"
+
+
+def _band_per_frame(ax, t: np.ndarray, tokens: tuple[str, ...], name: str) -> None:
+    """The status band as it was drawn before: one bar per frame (the reference)."""
+    edges = plots._cell_edges(t)
+    for token, c in (*plots.STATUS_COLORS.items(), (plots.NO_POSE, plots._NO_POSE_COLOR)):
+        if token == plots.NO_POSE:
+            sel = np.array([x not in plots.STATUS_COLORS for x in tokens])
+        else:
+            sel = np.array([x == token for x in tokens])
+        if np.any(sel):
+            ax.bar(
+                edges[:-1][sel],
+                1.0,
+                width=np.diff(edges)[sel],
+                align="edge",
+                color=c,
+                edgecolor="none",
+                label=token,
+            )
+    ax.set_yticks([])
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(name, fontsize=8)
+    ax.set_title(f"{name} pose status: {plots.status_shares_text(tokens)}", fontsize=9)
+    ax.legend(fontsize=7, ncol=5, loc="upper right", bbox_to_anchor=(1.0, -0.6))
+
+
+def test_status_band_of_runs_draws_the_pixels_of_one_bar_per_frame(tmp_path, monkeypatch):
+    """signs_per_frame.png's band: a bar per run of one status, the same image as a bar per
+    frame (runs of every length, a failure token, uneven frame times)."""
+    rng = np.random.default_rng(11)
+    n = 120
+    choices = ["ok", "weak", "bridged", "suspect", "no_signs"]
+    tokens = tuple(choices[k] for k in np.repeat(rng.integers(0, 5, 40), rng.integers(1, 6, 40)))
+    n = len(tokens)
+    stamps_s = np.cumsum(rng.uniform(0.05, 0.15, n))
+    data = replace(_plot_data(rng, -2.0, n), frame_stamps_s=stamps_s, statuses={"smoothed": tokens})
+    runs = 1 + sum(a != b for a, b in zip(tokens, tokens[1:], strict=False))
+    assert runs < n  # some runs are longer than a frame
+    merged = plots.plot_signs_per_frame(tmp_path / "runs.png", data)
+    monkeypatch.setattr(plots, "_status_band", _band_per_frame)
+    per_frame = plots.plot_signs_per_frame(tmp_path / "frames.png", data)
+    a, b = imread(merged), imread(per_frame)
+    assert a.shape == b.shape
+    assert np.abs(a - b).max() <= 1 / 255
