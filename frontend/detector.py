@@ -952,38 +952,39 @@ class SignDetector:
         The predictions of one frame come from one predicted pose, so they are
         off by nearly the same image shift (mostly the camera's rotation since
         the pose): largest predicted sign first, each verification uses the
-        offset of the nearest sign found so far. When the first fails before
-        any is found, the region around it (``track_anchor_margin``) is
-        searched and decoded in full (an anchor): the predicted signs read
-        there are found, and their offsets guide the others. The predictions
-        left to search carry the median offset.
+        offset of the nearest sign found so far. When none verifies at the
+        predicted places, the region around the largest that failed
+        (``track_anchor_margin``) is searched and decoded in full (an
+        anchor): the predicted signs read there are found, and the others
+        are verified again with their offsets. The predictions left to
+        search carry the median offset.
+
+        The anchor waits until every prediction has been tried: a failed
+        first verification is as often the sign's own occluder as a shift
+        of the whole frame (bench_frontend's hard flight: an anchor in 19 of
+        38 tracked frames, most of them needless once the next sign verified).
         """
-        order = sorted(
-            range(len(predictions)),
-            key=lambda i: (-predictions[i].diameter_px, predictions[i].code, i),
-        )
-        found: list[SignObservation] = []
-        offsets: list[tuple[float, float]] = []
-        outcomes: dict[int, VerifyOutcome] = {}
-        done: set[int] = set()
-        anchored = False
-        for i in order:
-            p = predictions[i]
-            if i in done or p.image_H_sign is None or not self.settings.decode:
-                continue
-            shift = _offset_near(p, found, offsets)
-            v = verify_sign(gray, _translated(p.image_H_sign, shift), p.code, codes)
-            outcomes[i] = v.outcome
-            if v.ok:
-                found.append(_verified_observation(v.result))
-                offsets.append(_offset(found[-1], p))
-                done.add(i)
-            elif not offsets and not anchored:
-                anchored = True
-                for j, obs in self._anchor(gray, p, predictions, done, codes):
-                    found.append(obs)
-                    offsets.append(_offset(obs, predictions[j]))
-                    done.add(j)
+        order = [
+            i
+            for i in sorted(
+                range(len(predictions)),
+                key=lambda i: (-predictions[i].diameter_px, predictions[i].code, i),
+            )
+            if predictions[i].image_H_sign is not None and self.settings.decode
+        ]
+        found, offsets, outcomes, done = _verify_in_turn(gray, predictions, order, codes, [], [])
+        if order and not offsets:
+            for j, obs in self._anchor(gray, predictions[order[0]], predictions, done, codes):
+                found.append(obs)
+                offsets.append(_offset(obs, predictions[j]))
+                done.add(j)
+            if offsets:
+                again = [i for i in order if i not in done]
+                found, offsets, more, newly = _verify_in_turn(
+                    gray, predictions, again, codes, found, offsets
+                )
+                outcomes |= more
+                done |= newly
         shift = tuple(np.median(offsets, axis=0)) if offsets else (0.0, 0.0)
         left = [
             _shifted_prediction(predictions[i], shift)
@@ -1110,6 +1111,36 @@ def _offset_near(
         return (0.0, 0.0)
     k = min(range(len(found)), key=lambda j: math.dist(found[j].center_px, p.center_px))
     return offsets[k]
+
+
+def _verify_in_turn(
+    gray: np.ndarray,
+    predictions: Sequence[PredictedSign],
+    order: list[int],
+    codes: tuple[str, ...] | None,
+    found: list[SignObservation],
+    offsets: list[tuple[float, float]],
+) -> tuple[list[SignObservation], list[tuple[float, float]], dict[int, VerifyOutcome], set[int]]:
+    """Verify ``predictions[order]`` in turn, each at the offset of the nearest
+    sign found so far (``found`` and their ``offsets``, then those verified here).
+
+    Returns:
+        (found, offsets) with the verified signs appended (new lists), the
+        outcome of each prediction tried, and the indices verified.
+    """
+    found, offsets = list(found), list(offsets)
+    outcomes: dict[int, VerifyOutcome] = {}
+    done: set[int] = set()
+    for i in order:
+        p = predictions[i]
+        shift = _offset_near(p, found, offsets)
+        v = verify_sign(gray, _translated(p.image_H_sign, shift), p.code, codes)
+        outcomes[i] = v.outcome
+        if v.ok:
+            found.append(_verified_observation(v.result))
+            offsets.append(_offset(found[-1], p))
+            done.add(i)
+    return found, offsets, outcomes, done
 
 
 def _shifted_prediction(p: PredictedSign, shift: tuple[float, float]) -> PredictedSign:
