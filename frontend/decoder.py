@@ -1467,12 +1467,19 @@ def _accept_code(
     if len(fits) != 1:
         return None, occ, DecodeReason.OCCLUDED
     if "1" in fits[0] and "1" not in occ.pattern:
-        # Every white slot of the code is hidden: nothing seen says it is this
-        # sign rather than any dark disc with a centre and a direction. On the
-        # independent scenes (1,000 per condition, seed 2017) this took the
-        # wrong codes 9 -> 7 of 10,000 (member in front 3 -> 1) and the paper
-        # map's one-slot-unique decodes 63.3 -> 46.1 % (its four one-white codes).
-        return None, occ, DecodeReason.OCCLUDED
+        # Every white slot of the code is erased: unless one of them shows
+        # white in part (a conductor or a member's edge over it), nothing seen
+        # says it is this sign rather than any dark disc with a centre and a
+        # direction. On the independent scenes (1,000 per condition, seed
+        # 2017) refusing them all took the wrong codes 9 -> 7 of 10,000
+        # (member in front 3 -> 1) and the paper map's one-slot-unique
+        # decodes 63.3 -> 46.1 % (its four one-white codes); the two wrong
+        # readings it stops there showed the erased slot gray throughout.
+        erased_white = [1 + k for k in range(1, N_BITS + 1) if fits[0][k - 1] == "1"]
+        if not occlusion.shows_white(
+            region.gray, image_H_sign, _PART_QUADS[erased_white], reading.black, reading.white
+        ).any():
+            return None, occ, DecodeReason.OCCLUDED
     return fits[0], occ, DecodeReason.OK
 
 

@@ -512,6 +512,26 @@ def interior_min_white(
     return np.array(out)
 
 
+# A part partly seen: its inside on a finer grid, and how many of those
+# samples must be white.
+_SEEN_WEIGHTS = _bilinear_weights(np.linspace(0.1, 0.9, 6), np.linspace(0.1, 0.9, 6))
+_SEEN_MIN = 3
+
+
+def shows_white(
+    gray: np.ndarray, image_H_sign: np.ndarray, quads: np.ndarray, black: float, white: float
+) -> np.ndarray:
+    """(P,) whether each part (quads (P, 4, 2) [diameters]) shows white inside
+    at ``_SEEN_MIN`` samples or more (``_WHITE_FRAC`` of the contrast): a
+    white slot partly hidden (a conductor, the edge of a member), not a black
+    one under a gray member, which shows the member's level throughout."""
+    if len(quads) == 0:
+        return np.zeros(0, bool)
+    pts = np.concatenate([_SEEN_WEIGHTS @ q for q in quads])
+    frac = (_sample(gray, _project(image_H_sign, pts)) - black) / max(white - black, 1e-6)
+    return (frac.reshape(len(quads), -1) > _WHITE_FRAC).sum(axis=1) >= _SEEN_MIN
+
+
 _GRID = np.concatenate(
     [r * np.stack([np.cos(_GRID_ANGLES), np.sin(_GRID_ANGLES)], axis=1) for r in _GRID_RADII]
 )

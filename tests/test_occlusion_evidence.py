@@ -200,3 +200,38 @@ def test_a_code_whose_every_white_slot_is_hidden_is_refused(monkeypatch):
     assert res.code is None and res.reason == DecodeReason.OCCLUDED
     seen = decode_roi(_bar_lighter_than_the_print("1100", 1, 0.35), ["1100", "0101", "0011"])
     assert seen.code == "1100" and seen.erased_slots == (1,)
+
+
+def test_a_one_white_code_whose_erased_slot_shows_white_in_part_decodes(monkeypatch):
+    """1000 with a member 0.1 diameters wide over its only white slot: the
+    slot's middle reads gray (erased), but white shows beside the member, so
+    the sign is seen and x000 decodes as the one map code it fits. The cue
+    switched off, it is refused as a code whose every white slot is hidden."""
+    codes = ["1000", "0101", "0011"]
+    image = _bar_lighter_than_the_print("1000", 1, 0.2, width=0.1)
+    res = decode_roi(image, codes)
+    assert res.code == "1000" and res.erased_slots == (1,)
+    monkeypatch.setattr(occlusion, "shows_white", lambda g, h, q, b, w: np.zeros(len(q), bool))
+    res = decode_roi(image, codes)
+    assert res.code is None and res.reason == DecodeReason.OCCLUDED
+
+
+def test_shows_white_tells_a_partly_hidden_slot_from_a_gray_one():
+    """White slot 1 of 1000 beside a member 0.1 diameters wide shows white; under
+    one 0.25 wide (the member's gray throughout) it does not."""
+    quads = decoder._PART_QUADS[[2]]
+    crop = render_crop(
+        "1000",
+        np.random.default_rng(3),
+        sign_px=90.0,
+        rotation_deg=25.0,
+        background="plain",
+        noise_sigma=1.5,
+    )
+    h = crop.crop_H_sign
+    black, white = float(np.percentile(crop.image, 5)), float(np.percentile(crop.image, 99))
+    for width, seen in ((None, True), (0.1, True), (0.25, False)):
+        image = _bar_lighter_than_the_print(
+            "1000", 1, None if width is None else 0.2, width=width or 0.1
+        )
+        assert occlusion.shows_white(image, h, quads, black, white).tolist() == [seen]
