@@ -177,3 +177,58 @@ def test_a_verified_signs_sigmas_are_the_decoders_for_the_same_sign():
     assert len(ratios) >= 15
     # Seen: median 1.00 (0.55-1.06, 24 of 24 crops); without the part measures 1.60.
     assert 0.9 < float(np.median(ratios)) < 1.1
+
+
+def _two_sign_frame(rng):
+    """A frame with two rendered signs farther apart than an anchor's region
+    (0.5 + 3 diameters + 4 px) and their true predictions (code, centre, 60 px, H)."""
+    img = np.full((240, 600), 150, np.uint8)
+    preds = []
+    for (x0, y0), code in (((20, 40), "1011"), ((480, 60), "0110")):
+        crop = render_crop(code, rng, sign_px=60.0, background="plain", noise_sigma=1.0)
+        hh, ww = crop.image.shape
+        img[y0 : y0 + hh, x0 : x0 + ww] = crop.image
+        h = _true_homography(crop, code, (x0, y0))
+        centre = tuple(float(c) for c in cv2.perspectiveTransform(np.zeros((1, 1, 2)), h)[0, 0])
+        preds.append(PredictedSign(code, centre, 60.0, h))
+    return img, preds
+
+
+def test_the_anchor_search_runs_only_when_no_prediction_verifies(monkeypatch):
+    """A failed verification of the largest sign (its occluder, not a shift of the
+    frame) no longer costs the anchor's search when another sign verifies; when
+    every prediction is off by the same shift, the anchor finds it and the others
+    verify at its offset."""
+    img, preds = _two_sign_frame(np.random.default_rng(7))
+    det = SignDetector()
+    anchors = []
+    real_anchor = SignDetector._anchor
+    monkeypatch.setattr(
+        SignDetector,
+        "_anchor",
+        lambda self, g, p, *a: anchors.append(p.code) or real_anchor(self, g, p, *a),
+    )
+    # The larger prediction at an empty place: it fails, the other verifies.
+    blank = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 130.0], [0.0, 0.0, 1.0]]) @ preds[0].image_H_sign
+    far = PredictedSign("1110", (preds[0].center_px[0], preds[0].center_px[1] + 130.0), 66.0, blank)
+    res = det.detect_tracked(img, [far, preds[1]])
+    assert (
+        res.verifications[1] is VerifyOutcome.VERIFIED
+        and res.verifications[0] is not VerifyOutcome.VERIFIED
+    )
+    assert anchors == []
+    # Every prediction 0.3 diameters off: nothing verifies; one anchor reads its
+    # sign, and the other verifies at the anchor's offset.
+    shifted = [
+        PredictedSign(
+            p.code,
+            (p.center_px[0] + 18.0, p.center_px[1]),
+            60.0,
+            np.array([[1.0, 0, 18.0], [0, 1.0, 0], [0, 0, 1.0]]) @ p.image_H_sign,
+        )
+        for p in preds
+    ]
+    res = det.detect_tracked(img, shifted)
+    assert len(anchors) == 1
+    assert sorted(d.code for d in res.detections) == ["0110", "1011"]
+    assert VerifyOutcome.VERIFIED in res.verifications and not res.fell_back
