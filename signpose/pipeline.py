@@ -15,7 +15,8 @@ listed in report.json.
 The flight is cut into chunks of
 ``chunk_frames`` source positions (``io.sources.read_range``: a seek to the
 chunk's start), each observed with its own tracking (a full-frame search at
-its start) inline or in one of ``workers`` processes, and the frames are
+its start) inline or in one of ``workers`` processes (the main process
+observes the first chunk itself while they start), and the frames are
 written in flight order as chunks finish; the chunks do not depend on the
 number of workers. A process that dies loses its chunk only: the run goes on
 and names the frames in ``problems`` (report.json: ``missing_frames``).
@@ -195,7 +196,8 @@ class ObserveSettings:
         cascade_path: detector cascade XML; "" = the bundled one.
         prefetch: read and decode the input in a background thread (per chunk).
         workers: processes observing chunks at once (0 = 2 on a multi-core
-            machine; 1 = inline). The output does not depend on it.
+            machine; 1 = inline); with processes, the main one observes the
+            first chunk too. The output does not depend on it.
         track_lag_frames: tracking predicts frame i from the pose of frame
             i - this (and the one before it).
         chunk_frames: source positions per chunk; each chunk starts its
