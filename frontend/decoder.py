@@ -1572,6 +1572,10 @@ def _reading_result(
             part_stray=measured.stray,
             part_inside=measured.inside,
             noise=measured.noise,
+            part_pull_px=measured.pull_px,
+            part_stray_pull_px=measured.stray_pull_px,
+            part_fill=measured.fill,
+            part_side_px=measured.side_px,
         )
     sigmas = keypoint_sigmas(inputs, names)
     return DecodeResult(

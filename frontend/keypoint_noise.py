@@ -16,6 +16,8 @@ the square of one thing the decoder measured (``variance_terms``):
               + (inside * [1 - inside_k - 5 noise]+ * minor)^2
               + (own_residual * own_k,a)^2
               + (crossed_px^2 + (crossed * minor)^2) [an occluder crosses the face]
+              + (pull * pull_k,a)^2 + (stray_pull * stray_pull_k,a)^2
+              + (fill * cut_k)^2 + (any_pull * max_j(|pull_j|, |stray_pull_j|, cut_j))^2
 
 ``a`` is the image axis (u or v) and ``k`` the keypoint's own part:
 ``own_k,a`` is its measured centroid minus the homography's prediction along
@@ -30,6 +32,24 @@ of white by a few noise sigmas on a clean sign, and renderers and cameras
 differ in their noise while the centroids barely feel it. The spread stands
 for uneven shading of the face (glare); with an occluder across the face it
 is the occluder's own gray and does not count.
+
+The pulls say where an occluder or glare moves a centroid (issue 11: the
+sigmas were 1.6-4x too tight where a conductor crosses a sign or glare lies
+on it). ``pull_k,a`` is the shift of part k's centroid [px] that the white
+missing inside it predicts (minus the first moment of 1 - white over a 9 x 9
+grid at 0.1-0.9 of its sides, over the samples: a line across one side);
+``stray_pull_k,a`` the shift that the stray white on its grown outline
+predicts (glare on one side). ``cut_k`` [px] is how far the part's fill
+(1 - white area / projected area in the decoder's centroid window) departs
+from the sign's median fill, beyond 5 noise, times its longest side: a line
+that cuts off a part's end moves its centroid while the homography, fitted
+through that centroid, carries the part's frame along, so the grid sees
+white throughout; the area does not follow. The median takes off the fill
+all parts share (a white level a little off). With four parts or fewer the
+fit passes through every centroid, and one pulled part bends the
+homography that places the others: hence the largest pull of any part
+(``any_pull``). The three pull measures take about 90 us per sign
+(``measure_parts``; the least white inside comes from the same grid).
 """
 
 from __future__ import annotations
@@ -41,7 +61,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from signpose.frontend import occlusion
 from signpose.frontend.homography import polygon_centroids
 
 # The names of the variance terms, in the order of ``variance_terms``' columns
@@ -58,6 +77,10 @@ TERMS: tuple[str, ...] = (
     "stray",
     "inside",
     "crossed",
+    "pull",
+    "stray_pull",
+    "fill",
+    "any_pull",
 )
 # Multiples of the noise taken off the spread and off the other shortfalls.
 _SPREAD_NOISE = 3.0
@@ -83,6 +106,17 @@ class KindNoise:
         inside: the same per unit of the part's inside shortfall of white.
         crossed: error as a fraction of the minor axis when an occluder
             crosses the face (a band's edges pull the parts it leaves).
+        pull: factor on the centroid shift that the white missing inside
+            the keypoint's own part predicts, per axis.
+        stray_pull: factor on the shift that the stray white just outside
+            it predicts, per axis.
+        fill: factor on the part's white area missing (or added) beyond the
+            noise, times its longest side [px] (a line cutting off its end
+            moves its centroid by about half the piece cut off).
+        any_pull: the same for the largest pull (inside, stray or fill) of
+            any part of the sign [px]: with four parts or fewer the fit
+            passes through every centroid, and one pulled part bends the
+            homography that places the others.
     """
 
     floor_px: float
@@ -96,6 +130,10 @@ class KindNoise:
     stray: float = 0.0
     inside: float = 0.0
     crossed: float = 0.0
+    pull: float = 0.0
+    stray_pull: float = 0.0
+    fill: float = 0.0
+    any_pull: float = 0.0
 
     def coefficients(self) -> np.ndarray:
         """(len(TERMS),) the constants, in ``TERMS`` order."""
@@ -128,46 +166,59 @@ def kind_of(name: str) -> str:
 # Calibrated by `.venv/bin/python scripts/calibrate_sigma.py --n 150 --seed 11`
 # against the simulator's truth (signpose.sim.crops, 12 conditions), the
 # constants as it prints them (rounded to 3 digits). Terms the fit drove to
-# ~0 stay in the model, a later calibration may need them.
+# ~0 stay in the model, a later calibration may need them. The pulls took
+# most of what spread, disturbance and crossed_px carried on centre and slot.
 SIGMA_MODEL = SigmaModel(
     center=KindNoise(
-        floor_px=0.0251,
-        size_px2=0.000367,
-        spread_px=4.3,
-        residual=3.24e-07,
-        disturbance=0.0121,
-        own_residual=0.419,
-        crossed_px=7.42e-05,
-        noise_px=0.00935,
-        stray=0.0181,
-        inside=0.0107,
-        crossed=6.29e-08,
+        floor_px=0.0226,
+        size_px2=0.00719,
+        spread_px=0.323,
+        residual=0.000656,
+        disturbance=2.06e-09,
+        own_residual=1.32,
+        crossed_px=1.55e-05,
+        noise_px=0.0323,
+        stray=0.0126,
+        inside=0.00893,
+        crossed=8.66e-07,
+        pull=1.03,
+        stray_pull=0.276,
+        fill=0.000616,
+        any_pull=0.0617,
     ),
     direction=KindNoise(
-        floor_px=0.027,
-        size_px2=0.429,
-        spread_px=1.95,
-        residual=0.309,
-        disturbance=0.0278,
-        own_residual=0.0425,
-        crossed_px=0.376,
-        noise_px=0.0684,
-        stray=0.0437,
-        inside=0.0229,
-        crossed=2.06e-09,
+        floor_px=0.0268,
+        size_px2=0.294,
+        spread_px=1.07,
+        residual=0.218,
+        disturbance=0.0242,
+        own_residual=0.0955,
+        crossed_px=0.377,
+        noise_px=0.103,
+        stray=0.0334,
+        inside=0.0251,
+        crossed=0.111,
+        pull=0.122,
+        stray_pull=0.0301,
+        fill=0.129,
+        any_pull=0.0251,
     ),
     slot=KindNoise(
-        floor_px=0.0242,
-        size_px2=4.71e-08,
-        spread_px=2.57,
-        residual=0.113,
-        disturbance=0.0122,
-        own_residual=0.313,
-        crossed_px=0.000306,
-        noise_px=0.0106,
-        stray=0.0189,
-        inside=0.00811,
-        crossed=1.67e-06,
+        floor_px=0.0226,
+        size_px2=2.06e-09,
+        spread_px=0.43,
+        residual=2.06e-09,
+        disturbance=4.36e-07,
+        own_residual=0.674,
+        crossed_px=4.02e-05,
+        noise_px=0.121,
+        stray=0.0185,
+        inside=0.00839,
+        crossed=2.56e-07,
+        pull=0.883,
+        stray_pull=0.319,
+        fill=0.146,
+        any_pull=0.0474,
     ),
 )
 
@@ -195,6 +246,14 @@ class SigmaInputs:
             (a line or dirt across it).
         noise: robust high-pass noise of the disc's black, as a fraction of
             white - black (NaN: not measured).
+        part_pull_px: part name -> (du, dv) [px], the shift of the part's
+            centroid that the white missing inside it predicts (a line or
+            a bar edge across one side of it; ``measure_parts``).
+        part_stray_pull_px: part name -> (du, dv) [px], the shift that the
+            stray white on its outline predicts (glare on one side).
+        part_fill: part name -> 1 - its white area over its projected area
+            in its centroid window (NaN: not measured).
+        part_side_px: part name -> its longest projected side [px].
     """
 
     minor_px: float
@@ -206,6 +265,10 @@ class SigmaInputs:
     part_stray: Mapping[str, float] = field(default_factory=dict)
     part_inside: Mapping[str, float] = field(default_factory=dict)
     noise: float = float("nan")
+    part_pull_px: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    part_stray_pull_px: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    part_fill: Mapping[str, float] = field(default_factory=dict)
+    part_side_px: Mapping[str, float] = field(default_factory=dict)
 
 
 def part_residuals_px(
@@ -228,9 +291,7 @@ def part_residuals_px(
     """
     if len(names) <= 4:
         return {}
-    flat = np.asarray(quads, dtype=float).reshape(-1, 2)
-    p = np.c_[flat, np.ones(len(flat))] @ np.asarray(image_H_sign, dtype=float).T
-    proj = (p[:, :2] / p[:, 2:]).reshape(-1, 4, 2)
+    proj = _project(np.asarray(image_H_sign, dtype=float), quads).reshape(-1, 4, 2)
     r = np.asarray(centroids_px, dtype=float) - polygon_centroids(proj)
     return {n: (float(du), float(dv)) for n, (du, dv) in zip(names, r, strict=True)}
 
@@ -247,6 +308,11 @@ _EDGE_T = np.linspace(0.1, 0.9, 5)
 # window (1.5 px), at most this far in diameters (the gaps between parts).
 _STRAY_PX = 2.5
 _STRAY_MAX = 0.04
+_LEVELS = np.arange(256, dtype=np.float32)
+# The decoder's centroid window: each part grown by this much [px], at most
+# this far [diameters].
+_WINDOW_PX = 1.5
+_WINDOW_MAX = 0.035
 
 
 @dataclass(frozen=True)
@@ -257,18 +323,23 @@ class PartMeasures:
     stray: dict[str, float]
     inside: dict[str, float]
     noise: float
+    pull_px: dict[str, tuple[float, float]] = field(default_factory=dict)
+    stray_pull_px: dict[str, tuple[float, float]] = field(default_factory=dict)
+    fill: dict[str, float] = field(default_factory=dict)
+    side_px: dict[str, float] = field(default_factory=dict)
 
 
 def _project(h: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    p = np.c_[np.asarray(xy, dtype=float).reshape(-1, 2), np.ones(len(xy))] @ h.T
+    p = np.asarray(xy, dtype=float).reshape(-1, 2) @ h[:, :2].T + h[:, 2]
     return p[:, :2] / p[:, 2:]
 
 
-def _sample(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """(N,) bilinear gray levels at (N, 2) pixels, NaN outside the image."""
+def _sample(gray: np.ndarray, uv: np.ndarray, replicate: bool = False) -> np.ndarray:
+    """(N,) bilinear gray levels at (N, 2) pixels, NaN outside the image
+    (``replicate``: the border's level there, as ``occlusion`` samples)."""
     h, w = gray.shape
     u, v = uv[:, 0], uv[:, 1]
-    ok = (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
+    ok = np.ones(len(uv), bool) if replicate else (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
     out = np.full(len(uv), np.nan)
     if ok.any():
         m = uv[ok].astype(np.float32).reshape(1, -1, 2)
@@ -277,48 +348,141 @@ def _sample(gray: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out
 
 
-def _noise(gray: np.ndarray, image_H_sign: np.ndarray, contrast: float) -> float:
-    """Robust noise of the black rings over ``contrast``: second differences
-    along each ring cancel smooth shading (glare, vignetting)."""
-    g = _sample(gray, _project(image_H_sign, _RINGS_XY)).reshape(len(_BLACK_RINGS), -1)
-    d = np.roll(g, 1, axis=1) - 2 * g + np.roll(g, -1, axis=1)
+def _noise(ring_gray: np.ndarray, contrast: float) -> float:
+    """Robust noise of the black rings' gray levels (``_RINGS_XY``, NaN off
+    the image) over ``contrast``: second differences along each ring cancel
+    smooth shading (glare, vignetting)."""
+    g = ring_gray.reshape(len(_BLACK_RINGS), -1)
+    wrapped = np.concatenate([g[:, -1:], g, g[:, :1]], axis=1)
+    d = wrapped[:, :-2] - 2 * g + wrapped[:, 2:]
     d = d[np.isfinite(d)]
     if len(d) < 16:
         return float("nan")
     return float(1.4826 * np.median(np.abs(d)) / math.sqrt(6.0) / max(contrast, 1e-6))
 
 
+def _scale_px(h: np.ndarray) -> float:
+    """px per diameter at the sign's centre (sqrt |det| of the homography's Jacobian there)."""
+    (a, b, c), (d, e, f), (g, i, w) = h.tolist()
+    det = ((a * w - c * g) * (e * w - f * i) - (b * w - c * i) * (d * w - f * g)) / w**4
+    return math.sqrt(abs(det))
+
+
 @functools.cache
-def _outline_geometry(quads_key: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Each part's outline samples and outward unit normals in the sign plane,
-    (P * 4 * len(_EDGE_T), 2) each, for ``quads`` flattened as ``quads_key``."""
+def _geometry(quads_key: tuple[float, ...], thin_key: tuple[bool, ...]) -> tuple:
+    """The sign-plane sample points of ``measure_parts`` for one part list:
+    the inside grids (P * K, 2), the outline samples and their outward unit
+    normals (P * 4 * len(_EDGE_T), 2) each, the corners (4P, 2) and each
+    corner's growth direction (4P, 2: the sum of its two edges' outward unit
+    normals, so growing by ``g`` moves every edge out by ``g``) and the
+    inside masks (P, K)."""
     quads = np.array(quads_key).reshape(-1, 4, 2)
-    base, normals = [], []
+    base, normals, grow = [], [], []
     for q in quads:
         c = q.mean(axis=0)
+        edge = []
         for i in range(4):
             a, b = q[i], q[(i + 1) % 4]
             n = np.array([b[1] - a[1], a[0] - b[0]]) / max(float(np.hypot(*(b - a))), 1e-12)
-            if n @ ((a + b) / 2 - c) < 0:
-                n = -n
+            n = n if n @ ((a + b) / 2 - c) >= 0 else -n
+            edge.append(n)
             base.append(a + np.outer(_EDGE_T, b - a))
             normals.append(np.tile(n, (len(_EDGE_T), 1)))
-    return np.concatenate(base), np.concatenate(normals)
+        grow.extend(edge[i - 1] + edge[i] for i in range(4))
+    inside = (_PULL_GRID @ quads).reshape(-1, 2)
+    masks = _PULL_MASK[np.array(thin_key, dtype=int)]
+    return (
+        inside,
+        np.concatenate(base),
+        np.concatenate(normals),
+        quads.reshape(-1, 2),
+        np.array(grow),
+        masks,
+    )
 
 
-def _stray(gray, image_H_sign, quads, black, white) -> np.ndarray:
-    """(P,) mean white fraction on each part's outline grown by ``_STRAY_PX``
-    (one projection and one sampling for all parts)."""
-    steps = _project(image_H_sign, np.array([[0.0, 0.0], [0.01, 0.0], [0.0, 0.01]]))
-    scale = math.sqrt(abs(np.linalg.det(steps[1:] - steps[0]))) / 0.01  # px per diameter
-    grow = min(_STRAY_PX / max(scale, 1e-9), _STRAY_MAX)
-    base, normals = _outline_geometry(tuple(np.asarray(quads, dtype=float).ravel().tolist()))
-    g = _sample(gray, _project(image_H_sign, base + grow * normals))
-    frac = np.clip((g - black) / max(white - black, 1e-6), 0.0, 1.0).reshape(len(quads), -1)
+def _stray(frac: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """From the white fractions (P, S) at the grown outline points (P, S, 2)
+    [px] (NaN off the image): (P,) their mean and (P, 2) the shift of the
+    part's centroid they predict [px] (their first moment about the outline's
+    centre, per sample)."""
     ok = np.isfinite(frac)
     count = ok.sum(axis=1)
-    total = np.where(ok, frac, 0.0).sum(axis=1)
-    return np.where(count > 0, total / np.maximum(count, 1), 0.0)
+    w = np.where(ok, frac, 0.0)
+    moment = (w[:, None, :] @ (uv - uv.mean(axis=1, keepdims=True)))[:, 0, :]
+    n = np.maximum(count, 1)[:, None]
+    return np.where(count > 0, w.sum(axis=1) / n[:, 0], 0.0), moment / n
+
+
+def _inside(frac: np.ndarray, uv: np.ndarray, masks: np.ndarray, thin: np.ndarray) -> tuple:
+    """From the white fractions (P, K) at the inside grid (P, K, 2) [px]: (P,)
+    the least white fraction and (P, 2) the shift of the centroid [px] that
+    the white missing there predicts (minus the deficit's first moment about
+    the samples' centre, over their count)."""
+    least = np.where(thin, frac[:, _MIN_IDX[1]].min(axis=1), frac[:, _MIN_IDX[0]].min(axis=1))
+    count = masks.sum(axis=1, keepdims=True)
+    d = masks * (1.0 - np.clip(frac, 0.0, 1.0))
+    first = (d[:, None, :] @ uv)[:, 0, :]
+    centre = (masks[:, None, :] @ uv)[:, 0, :] / count
+    return least, -(first - d.sum(axis=1, keepdims=True) * centre) / count
+
+
+def _fill(gray, corners, grown, black, white) -> tuple[np.ndarray, np.ndarray]:
+    """Each part's white area against its projected area (``corners``, (P, 4,
+    2) [px]) in its centroid window (``grown``: the quad grown by
+    ``_WINDOW_PX``, as the decoder measures it): (P,) 1 - white / projected
+    area (a line or a bar's edge across the part takes white away, glare in
+    the window adds some: blur keeps the sum) and (P,) the part's longest
+    projected side [px]. NaN where the windows leave the image."""
+    n = len(corners)
+    x, y = corners[..., 0], corners[..., 1]
+    nxt = [1, 2, 3, 0]
+    area = 0.5 * np.abs((x * y[:, nxt] - x[:, nxt] * y).sum(axis=1))
+    side = np.hypot(x[:, nxt] - x, y[:, nxt] - y).max(axis=1)
+    h, w = gray.shape
+    (u0, v0), (u1, v1) = grown.reshape(-1, 2).min(axis=0), grown.reshape(-1, 2).max(axis=0)
+    if not (u0 >= 0 and v0 >= 0 and u1 <= w - 1 and v1 <= h - 1):
+        return np.full(n, np.nan), side
+    x0, y0, x1, y1 = int(u0), int(v0), int(math.ceil(u1)) + 1, int(math.ceil(v1)) + 1
+    labels = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    pts = np.round((grown - (x0, y0)) * 16).astype(np.int32)
+    for i in range(n):
+        cv2.fillConvexPoly(labels, pts[i], i + 1, lineType=cv2.LINE_8, shift=4)
+    box = gray[y0:y1, x0:x1]
+    if box.dtype == np.uint8:
+        # The white fraction of every gray level, looked up.
+        lut = np.clip((_LEVELS - black) / max(white - black, 1e-6), 0.0, 1.0)
+        frac = cv2.LUT(box, lut)
+    else:
+        frac = np.clip((box - black) / max(white - black, 1e-6), 0.0, 1.0)
+    white_area = np.bincount(labels.ravel(), frac.ravel(), n + 1)[1:]
+    return 1.0 - white_area / np.maximum(area, 1e-9), side
+
+
+def _grid_weights(along: np.ndarray, across: np.ndarray) -> np.ndarray:
+    """(len(along) * len(across), 4) weights of a quad's corners (q0 -> q1
+    along, q0 -> q3 across) for the points at those fractions."""
+    a, b = np.meshgrid(along, across, indexing="ij")
+    a, b = a.ravel(), b.ravel()
+    return np.stack([(1 - a) * (1 - b), a * (1 - b), a * b, (1 - a) * b], axis=1)
+
+
+# Inside samples of each part [fractions of its sides], 9 x 9 at 0.1-0.9
+# (a line near a part's end moves its centroid the most); the thin
+# directional rectangle's on its centre line only (the column at 0.5). The
+# least white comes from the 4 x 4 (thin: 4) of
+# ``occlusion.interior_min_white`` (0.2-0.8: every second one here).
+_PULL_T = np.linspace(0.1, 0.9, 9)
+_PULL_GRID = _grid_weights(_PULL_T, _PULL_T)
+_CENTRE_LINE = len(_PULL_T) // 2
+_PULL_MASK = np.zeros((2, len(_PULL_GRID)))  # row 1: thin parts
+_PULL_MASK[0] = 1.0
+_PULL_MASK[1, _CENTRE_LINE :: len(_PULL_T)] = 1.0
+_MIN_T = np.arange(1, len(_PULL_T), 2)
+_MIN_IDX = (
+    (len(_PULL_T) * _MIN_T[:, None] + _MIN_T[None, :]).ravel(),
+    len(_PULL_T) * _MIN_T + _CENTRE_LINE,
+)
 
 
 def measure_parts(
@@ -332,6 +496,9 @@ def measure_parts(
 ) -> PartMeasures:
     """What the image shows around each measured part, for its keypoint's sigma.
 
+    One projection and one sampling for every measure (inside grids, grown
+    outlines, black rings; the windows' corners projected with them).
+
     Args:
         gray: (H, W) the crop the centroids were measured in.
         image_H_sign: (3, 3) the fitted homography [sign units -> px].
@@ -342,15 +509,45 @@ def measure_parts(
     """
     h = np.asarray(image_H_sign, dtype=float)
     quads = np.asarray(quads, dtype=float)
-    thin = np.array([n == "direction" for n in names], dtype=bool)
-    inside = occlusion.interior_min_white(gray, h, quads, black, white, thin)
-    stray = _stray(gray, h, quads, black, white)
+    n = len(quads)
+    thin = np.array([nm == "direction" for nm in names], dtype=bool)
+    inside_xy, base, normals, corners, growth, masks = _geometry(
+        tuple(quads.ravel().tolist()), tuple(thin.tolist())
+    )
+    scale = _scale_px(h)
+    stray_grow = min(_STRAY_PX / max(scale, 1e-9), _STRAY_MAX)
+    window_grow = min(_WINDOW_PX / max(scale, 1e-9), _WINDOW_MAX)
+    sampled = [inside_xy, base + stray_grow * normals, _RINGS_XY]
+    sizes = [len(x) for x in sampled]
+    uv = _project(h, np.concatenate([*sampled, corners, corners + window_grow * growth]))
+    k0, k1, k2 = sizes[0], sizes[0] + sizes[1], sum(sizes)
+    g = _sample(gray, uv[:k2], replicate=True)
+    rows, cols = gray.shape
+    u, v = uv[k0:k2, 0], uv[k0:k2, 1]
+    # Outline and ring samples off the image do not count (NaN).
+    g[k0:k2][~((u >= 0) & (v >= 0) & (u <= cols - 1) & (v <= rows - 1))] = np.nan
+    frac = (g[:k1] - black) / max(white - black, 1e-6)
+    inside, pull = _inside(frac[:k0].reshape(n, -1), uv[:k0].reshape(n, -1, 2), masks, thin)
+    stray, stray_pull = _stray(
+        np.clip(frac[k0:k1], 0.0, 1.0).reshape(n, -1), uv[k0:k1].reshape(n, -1, 2)
+    )
+    fill, side = _fill(
+        gray, uv[k2 : k2 + 4 * n].reshape(n, 4, 2), uv[k2 + 4 * n :].reshape(n, 4, 2), black, white
+    )
     return PartMeasures(
         residual_px=part_residuals_px(h, names, quads, centroids_px),
-        stray={n: float(v) for n, v in zip(names, stray, strict=True)},
-        inside={n: float(v) for n, v in zip(names, inside, strict=True)},
-        noise=_noise(gray, h, white - black),
+        stray={nm: float(x) for nm, x in zip(names, stray, strict=True)},
+        inside={nm: float(x) for nm, x in zip(names, inside, strict=True)},
+        noise=_noise(g[k1:k2], white - black),
+        pull_px=_pairs(names, pull),
+        stray_pull_px=_pairs(names, stray_pull),
+        fill={nm: float(x) for nm, x in zip(names, fill, strict=True)},
+        side_px={nm: float(x) for nm, x in zip(names, side, strict=True)},
     )
+
+
+def _pairs(names: list[str], xy: np.ndarray) -> dict[str, tuple[float, float]]:
+    return {n: (float(a), float(b)) for n, (a, b) in zip(names, xy.tolist(), strict=True)}
 
 
 def variance_terms(inputs: SigmaInputs, name: str) -> np.ndarray:
@@ -382,7 +579,42 @@ def variance_terms(inputs: SigmaInputs, name: str) -> np.ndarray:
         (inside * minor) ** 2,
         crossed * minor**2,
     ]
-    return np.array([head + [own[0] ** 2] + tail, head + [own[1] ** 2] + tail])
+    pull = inputs.part_pull_px.get(name, (0.0, 0.0))
+    spull = inputs.part_stray_pull_px.get(name, (0.0, 0.0))
+    cuts = _cuts_px(inputs, short)
+    cut = cuts.get(name, 0.0) ** 2
+    worst = _largest_pull_px(inputs, cuts) ** 2
+    return np.array(
+        [
+            head + [own[0] ** 2] + tail + [pull[0] ** 2, spull[0] ** 2, cut, worst],
+            head + [own[1] ** 2] + tail + [pull[1] ** 2, spull[1] ** 2, cut, worst],
+        ]
+    )
+
+
+def _cuts_px(inputs: SigmaInputs, short: float) -> dict[str, float]:
+    """Per part: how far its fill departs from the sign's median fill, beyond
+    ``short``, times its longest side [px]. The median takes off what all
+    parts share (a white level a little off moves every part's fill alike);
+    a line cutting one part off, or a homography that one pulled part bent,
+    sets parts apart."""
+    fills = {n: f for n, f in inputs.part_fill.items() if math.isfinite(f)}
+    if not fills:
+        return {}
+    mid = float(np.median(list(fills.values())))
+    return {
+        n: max(abs(f - mid) - short, 0.0) * inputs.part_side_px.get(n, 0.0)
+        for n, f in fills.items()
+    }
+
+
+def _largest_pull_px(inputs: SigmaInputs, cuts: Mapping[str, float]) -> float:
+    """The largest pull (inside, stray) or cut (``_cuts_px``) of any part [px]."""
+    out = max(cuts.values(), default=0.0)
+    for n, (du, dv) in inputs.part_pull_px.items():
+        su, sv = inputs.part_stray_pull_px.get(n, (0.0, 0.0))
+        out = max(out, math.hypot(du, dv), math.hypot(su, sv))
+    return out
 
 
 def keypoint_sigmas(

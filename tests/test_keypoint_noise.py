@@ -3,6 +3,7 @@
 import math
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 from signpose.frontend.decoder import decode_roi
@@ -10,6 +11,7 @@ from signpose.frontend.homography import polygon_centroids
 from signpose.frontend.keypoint_noise import (
     SigmaInputs,
     keypoint_sigmas,
+    measure_parts,
     part_residuals_px,
 )
 from signpose.frontend.sign import sign_shape
@@ -137,3 +139,60 @@ def test_sigmas_are_calibrated_on_clean_rendered_crops():
     assert len(z) >= 100
     rms_u, rms_v = np.sqrt((z**2).mean(axis=0))
     assert 0.6 < rms_u < 1.6 and 0.6 < rms_v < 1.6, (rms_u, rms_v)
+
+
+def test_a_pull_inside_a_part_grows_its_own_sigma_along_it():
+    pulled = replace(CLEAN, part_pull_px={"slot1": (0.0, 0.5)})
+    a, b = _sig(CLEAN), _sig(pulled)
+    assert b["slot1"][1] > 2.0 * a["slot1"][1]  # along v
+    assert b["slot1"][0] < b["slot1"][1]
+    # With four parts or fewer the fit bends with one pulled part: the others grow too.
+    assert b["center"][0] > a["center"][0]
+
+
+def test_a_part_whose_fill_departs_from_the_others_grows_its_sigma():
+    names = {"center": 12.0, "direction": 15.0, "slot1": 14.0}
+    common = replace(CLEAN, part_fill=dict.fromkeys(names, -0.08), part_side_px=names)
+    cut = replace(common, part_fill={**common.part_fill, "slot1": 0.15})
+    # A fill all parts share (a white level a little off) is no pull.
+    assert _sig(common) == _sig(replace(common, part_fill=dict.fromkeys(names, 0.0)))
+    assert _sig(cut)["slot1"][0] > 2.0 * _sig(common)["slot1"][0]
+
+
+def _decoded_clean(rng):
+    crop = render_crop("1111", rng, sign_px=90, rotation_deg=10, tilt_deg=10, noise_sigma=0.5)
+    res = decode_roi(crop.image)
+    assert res.code == "1111"
+    names = list(res.keypoints_px)
+    quads = np.stack([sign_shape("1111", 1.0).white_parts[n] for n in names])
+    return crop.image.copy(), res, names, quads
+
+
+def test_measure_parts_sees_a_line_that_cuts_off_a_parts_end():
+    """A dark line across slot1 near one end: its fill departs from the
+    others' and its pull points away from the line; a clean crop shows
+    neither."""
+    gray, res, names, quads = _decoded_clean(np.random.default_rng(5))
+    h = res.image_H_sign
+    cents = np.array([res.keypoints_px[n] for n in names])
+    black, white = float(np.percentile(gray, 1)), float(np.percentile(gray, 99))
+    clean = measure_parts(gray, h, names, quads, cents, black, white)
+    q = quads[names.index("slot1")]
+    # A line across the slot at 85 % of its length (q0 -> q1 along it).
+    a, b = q[0] + 0.85 * (q[1] - q[0]), q[3] + 0.85 * (q[2] - q[3])
+    ends = cv2.perspectiveTransform(np.array([[a, b]], dtype=float), h)[0]
+    cv2.line(
+        gray,
+        tuple(np.round(ends[0]).astype(int)),
+        tuple(np.round(ends[1]).astype(int)),
+        int(black),
+        3,
+    )
+    cut = measure_parts(gray, h, names, quads, cents, black, white)
+    others = [cut.fill[n] for n in names if n != "slot1"]
+    assert cut.fill["slot1"] > max(others) + 0.05
+    assert max(abs(clean.fill[n] - np.median(list(clean.fill.values()))) for n in names) < 0.05
+    line_dir = ends.mean(axis=0) - np.array(res.keypoints_px["slot1"])
+    assert np.dot(cut.pull_px["slot1"], line_dir) < 0  # pulled away from the line
+    assert math.hypot(*cut.pull_px["slot1"]) > 0.1
+    assert max(math.hypot(*clean.pull_px[n]) for n in names) < 0.05
