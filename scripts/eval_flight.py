@@ -19,8 +19,10 @@ box in raw pixels through the lens, the share of its disc hidden):
 * pose sigma honesty: rms(error / sigma) per world axis, and the share of
   ``ok`` poses beyond 3 sigma on some axis (Gaussian: 0.8 %);
 * codes: every observation of observations.jsonl whose code has no drawn sign
-  with its centre inside the observation's box (a wrong or false code), and
-  recall: drawn signs >= 18 px, whole in the image, with no observation;
+  with its centre inside the observation's box (a wrong or false code, or the
+  right sign with a box beside it), and recall: drawn signs >= 18 px, whole in
+  the image, seen at most 60 deg off their normal, with no observation (by the
+  share of the disc an occluder hides);
 * keypoint honesty: rms(error / keypoint_sigma_px) of the centre keypoints
   against their true raw-pixel projections, per image axis;
 * report.json's ``pixel_noise_scale``;
@@ -30,10 +32,12 @@ box in raw pixels through the lens, the share of its disc hidden):
   the survey's share;
 * with ``--drop-lens-model``: the same observations estimated with camera.yaml's
   distortion dropped (a wrong calibration): does signpose notice?
+* with ``--oracle``: the same observations with every keypoint moved to its
+  true pixel, estimated against the same map: the estimator's share of an error.
 
     nice -n 5 .venv/bin/python scripts/eval_flight.py [--quick] [--work DIR] [--json PATH]
         [--flights NAME ...] [--without lens jpeg vibration pan members] [--surveys K]
-        [--drop-lens-model] [--rerun]
+        [--drop-lens-model] [--oracle] [--rerun]
 
 The default set (4 flights of 240 frames at 1280x720 and one of 150 at
 1920x1080) takes about 5-10 min on 2 cores; ``--quick`` 2 flights of 60
@@ -63,10 +67,13 @@ from signpose.io.camera_file import load_camera, write_camera_info
 
 SCRIPTS = Path(__file__).resolve().parent
 MIN_RECALL_PX = 18.0  # signs at least this wide count for the recall
+MAX_RECALL_INCIDENCE_DEG = 60.0  # ... and seen at most this far off their normal
 GAUSS_BEYOND_3 = 1 - (1 - 0.0027) ** 3  # share of 3-D Gaussian errors beyond 3 sigma on some axis
 STATUSES = ("ok", "weak", "bridged", "suspect")
 AXES = "xyz"
 SIZE_BINS_PX = (18.0, 30.0, 60.0, math.inf)
+ORACLE_NAME = "observations_oracle.jsonl"
+SURVEY_KEYS = ("surveys", "surveys_oracle")
 # Share of a sign's disc an occluder hides: (name, above, at most).
 HIDDEN_BINS = (("none", -1.0, 0.0), ("<=10%", 0.0, 0.1), ("10-25%", 0.1, 0.25), (">25%", 0.25, 1.0))
 
@@ -261,7 +268,10 @@ class CodeCheck:
             or "box off its sign" (its centre keypoint on the drawn sign of its
             code, its box beside it: a right code with a wrong box; its
             keypoints are graded).
-        visible: drawn signs >= MIN_RECALL_PX, whole in the image.
+        visible: drawn signs >= MIN_RECALL_PX, whole in the image, seen at most
+            MAX_RECALL_INCIDENCE_DEG off their normal (when the truth says).
+        oblique: drawn signs >= MIN_RECALL_PX, whole in the image, seen further
+            off their normal (not counted in the recall).
         visible_unhidden: those of them no occluder touches.
         visible_hidden: the share of the disc hidden of each visible sign.
         missed: (frame, code, diameter [px], hidden share) of those not observed.
@@ -276,6 +286,7 @@ class CodeCheck:
     visible: int = 0
     visible_unhidden: int = 0
     visible_hidden: list[float] = field(default_factory=list)
+    oblique: int = 0
     missed: list[tuple] = field(default_factory=list)
     keypoints: dict[str, list] = field(default_factory=dict)
 
@@ -326,12 +337,31 @@ def check_frame(obs: dict, truth: dict, check: CodeCheck) -> None:
         seen.add(o["code"])
         _keypoint_rows(o, t, tuple(obs["image_size"]), check)
     for t in truth["signs"]:
-        if t["inside"] and t["diameter_px"] >= MIN_RECALL_PX:
+        if t.get("incidence_deg", 0.0) > MAX_RECALL_INCIDENCE_DEG:
+            check.oblique += t["inside"] and t["diameter_px"] >= MIN_RECALL_PX
+        elif t["inside"] and t["diameter_px"] >= MIN_RECALL_PX:
             check.visible += 1
             check.visible_unhidden += t["hidden"] == 0.0
             check.visible_hidden.append(t["hidden"])
             if t["code"] not in seen:
                 check.missed.append((obs["frame"], t["code"], t["diameter_px"], t["hidden"]))
+
+
+def with_incidence(truth: list[dict], sign_map: SignMap, gt: np.ndarray) -> list[dict]:
+    """``truth`` with each sign's ``incidence_deg``: the angle between its normal and the
+    line from its centre to the camera (frames by index into the ground truth)."""
+    signs = {s.code: s for s in sign_map.signs}
+    out = []
+    for t in truth:
+        centre = gt[t["frame"], 1:4]
+        seen = []
+        for s in t["signs"]:
+            sign = signs[s["code"]]
+            ray = centre - sign.center_m
+            cos = float(ray @ sign.normal / np.linalg.norm(ray))
+            seen.append(s | {"incidence_deg": math.degrees(math.acos(min(max(cos, -1), 1)))})
+        out.append(t | {"signs": seen})
+    return out
 
 
 def check_codes(observations: list[dict], truth: list[dict]) -> CodeCheck:
@@ -398,6 +428,7 @@ def code_summary(check: CodeCheck) -> dict:
             for name, lo, hi in HIDDEN_BINS
         },
         "visible_unhidden": check.visible_unhidden,
+        "oblique": check.oblique,
     }
 
 
@@ -455,8 +486,11 @@ def estimate_argv(flight: Path, observations: Path, given_map: Path, out: Path) 
     ]  # fmt: skip
 
 
-def survey_draws(spec: FlightSpec, work: Path, draws: int, rerun: bool) -> dict:
-    """The flight's observations estimated against ``draws`` more survey draws of its map.
+def survey_draws(
+    spec: FlightSpec, work: Path, draws: int, rerun: bool, observations: str = "out"
+) -> dict:
+    """The flight's observations estimated against ``draws`` more survey draws of its map
+    (``observations``: "out", the frontend's, or "oracle", ``oracle_observations``).
 
     All frames of one flight share its map's error, so one draw says little about
     whether the sigmas carry the survey's share; pooled over draws it does.
@@ -468,9 +502,11 @@ def survey_draws(spec: FlightSpec, work: Path, draws: int, rerun: bool) -> dict:
     for j in range(draws):
         given = d / f"map_survey_{j}.yaml"
         surveyed_map(d / "map_true.yaml", given, 1000 * spec.options.seed + j)
-        out = d / f"survey_{j}"
-        argv = estimate_argv(flight, d / "out" / "observations.jsonl", given, out)
-        ran = run_signpose(argv, d / f"survey_{j}.json", rerun)
+        tag = "" if observations == "out" else f"{observations}_"
+        out = d / f"survey_{tag}{j}"
+        source = {"out": d / "out" / "observations.jsonl", "oracle": d / ORACLE_NAME}
+        argv = estimate_argv(flight, source[observations], given, out)
+        ran = run_signpose(argv, d / f"survey_{tag}{j}.json", rerun)
         if ran["exit"] != 0:
             raise SystemExit(f"signpose {' '.join(argv)} exited {ran['exit']}: {ran['stderr']}")
         for method, rows in _rows_by_method(out / "trajectory.csv").items():
@@ -530,6 +566,43 @@ def survey_summary(pooled: dict) -> dict:
     return out
 
 
+def oracle_observations(observations: list[dict], truth: list[dict]) -> list[dict]:
+    """The frontend's observations with every keypoint of a right code moved to its true
+    raw pixel (same signs, keypoints and sigmas; wrong codes dropped): what the estimator
+    makes of the flight when the frontend's only error is its choice of what it saw."""
+    by_frame = {t["frame"]: {s["code"]: s for s in t["signs"]} for t in truth}
+    out = []
+    for obs in observations:
+        drawn, signs = by_frame[obs["frame"]], []
+        for o in obs["signs"]:
+            t = drawn.get(o["code"])
+            if t is None or not _on_sign(o, t):
+                continue
+            kp = {k: t["keypoints_px"][k] for k in o["keypoints_px"] if k in t["keypoints_px"]}
+            signs.append(o | {"keypoints_px": kp})
+        out.append(obs | {"signs": signs})
+    return out
+
+
+def oracle(flight: Path, d: Path, rerun: bool) -> dict:
+    """The flight estimated from ``oracle_observations`` against the same surveyed map."""
+    path = d / ORACLE_NAME
+    frames = oracle_observations(
+        read_jsonl(d / "out" / "observations.jsonl"), read_jsonl(flight / "truth.jsonl")
+    )
+    with atomic_write(path) as f:
+        f.writelines(json.dumps(o) + "\n" for o in frames)
+    argv = estimate_argv(flight, path, d / "map_surveyed.yaml", d / "oracle")
+    ran = run_signpose(argv, d / "oracle.json", rerun)
+    if ran["exit"] != 0:
+        return {"exit": ran["exit"], "stderr": ran["stderr"].strip(), "command": argv}
+    gt = read_gt(flight / "groundtruth.tum")
+    return {
+        "command": "nice -n 5 .venv/bin/signpose " + " ".join(argv),
+        "methods": pose_metrics(d / "oracle" / "trajectory.csv", gt, len(frames)),
+    }
+
+
 def without_lens(flight: Path, d: Path, rerun: bool) -> dict | None:
     """The flight's observations estimated with camera.yaml's distortion dropped (a user's
     wrong calibration): does signpose notice, or label wrong poses ``ok``?"""
@@ -557,12 +630,18 @@ def without_lens(flight: Path, d: Path, rerun: bool) -> dict | None:
 
 
 def evaluate(
-    spec: FlightSpec, work: Path, rerun: bool, draws: int = 0, lensless: bool = False
+    spec: FlightSpec,
+    work: Path,
+    rerun: bool,
+    draws: int = 0,
+    lensless: bool = False,
+    use_oracle: bool = False,
 ) -> dict:
     """Draw, run and grade one flight (and estimate it against ``draws`` more surveys,
-    and with ``lensless`` without its lens model)."""
+    with ``lensless`` without its lens model, with ``use_oracle`` from true keypoints)."""
     flight, draw, run = prepare(spec, work, rerun)
-    out = work / spec.name / "out"
+    d = work / spec.name
+    out = d / "out"
     ran = run_signpose(run, work / spec.name / "ran.json", rerun)
     result = {
         "name": spec.name,
@@ -579,8 +658,9 @@ def evaluate(
     if ran["exit"] != 0 or not (out / "report.json").is_file():
         return result
     report = json.loads((out / "report.json").read_text())
-    check = check_codes(read_jsonl(out / "observations.jsonl"), read_jsonl(flight / "truth.jsonl"))
     gt = read_gt(flight / "groundtruth.tum")
+    truth = with_incidence(read_jsonl(flight / "truth.jsonl"), load_map(d / "map_true.yaml"), gt)
+    check = check_codes(read_jsonl(out / "observations.jsonl"), truth)
     result |= {
         "pixel_noise_scale": report.get("pixel_noise_scale"),
         "report_status": {m: c.get("status") for m, c in report.get("coverage", {}).items()},
@@ -591,7 +671,12 @@ def evaluate(
     if draws:
         result["surveys"] = survey_summary(survey_draws(spec, work, draws, rerun))
     if lensless:
-        result["without_lens"] = without_lens(flight, work / spec.name, rerun)
+        result["without_lens"] = without_lens(flight, d, rerun)
+    if use_oracle:
+        result["oracle"] = oracle(flight, d, rerun)
+        if draws:
+            pooled = survey_draws(spec, work, draws, rerun, "oracle")
+            result["surveys_oracle"] = survey_summary(pooled)
     return result
 
 
@@ -631,7 +716,8 @@ def print_flight(r: dict) -> None:
         f"  pixel_noise_scale {r['pixel_noise_scale']}; observed {c['observed']}, no drawn sign "
         f"of the code in the box {c['wrong']} (wrong codes {c['wrong_codes']}, right sign with "
         f"the box beside it {c['box_off_its_sign']});\n  visible >= {MIN_RECALL_PX:g} px "
-        f"{c['visible']} (unhidden "
+        f"{c['visible']} (at most {MAX_RECALL_INCIDENCE_DEG:g} deg off their normal; "
+        f"{c['oblique']} more further off, not counted; unhidden "
         f"{c['visible_unhidden']}), missed {c['missed']}, recall {_fmt(c['recall'], '.1%')}; "
         f"missed by size {c['missed_by_size']};\n  recall by hidden share [visible, found, "
         f"recall] {c['recall_by_hidden']}"
@@ -646,6 +732,12 @@ def print_flight(r: dict) -> None:
             f"{_fmt(v['radial_bias_outer_px'], '+.3f')} px"
         )
     _print_methods(r["methods"])
+    orc = r.get("oracle")
+    if orc and "methods" in orc:
+        print(
+            f"  the frontend's observations with true keypoints (oracle):\n    $ {orc['command']}"
+        )
+        _print_methods(orc["methods"])
     wl = r.get("without_lens")
     if wl and "methods" in wl:
         print(f"  the same observations with camera.yaml's distortion dropped: pixel_noise_scale "
@@ -653,10 +745,11 @@ def print_flight(r: dict) -> None:
         _print_methods(wl["methods"])
     elif wl:
         print(f"  without the lens model: exited {wl['exit']}: {wl['stderr']}")
-    for m, v in r.get("surveys", {}).items():
+    for key, m, v in [(k, m, v) for k in SURVEY_KEYS for m, v in r.get(k, {}).items()]:
         if v["n"]:
             print(
-                f"  {m:<9}over {len(v['mean_err_m_per_draw'])} more survey draws: rms(e/sigma) "
+                f"  {m:<9}over {len(v['mean_err_m_per_draw'])} more survey draws"
+                f"{' (oracle keypoints)' if key == 'surveys_oracle' else ''}: rms(e/sigma) "
                 f"x y z {v['rms_z_xyz']}, ok beyond 3 sigma {v['ok_beyond_3sigma']} of "
                 f"{v['ok']}; mean error per draw [m] {v['mean_err_m_per_draw']}"
             )
@@ -691,16 +784,17 @@ def pooled(results: list[dict]) -> dict:
             "ok_beyond_3sigma": sum(x["ok_beyond_3sigma"] for x in rs),
             "ok_max_m": max((x["ok_max_m"] for x in rs), default=None),
         }
-        sv = [r["surveys"][m] for r in ran if m in r.get("surveys", {}) and r["surveys"][m]["n"]]
-        if sv:
-            n = sum(v["n"] for v in sv)
-            ms = sum(v["n"] * np.square(v["rms_z_xyz"]) for v in sv) / n
-            out[m]["surveys"] = {
-                "n": n,
-                "rms_z_xyz": np.sqrt(ms).round(3).tolist(),
-                "ok": sum(v["ok"] for v in sv),
-                "ok_beyond_3sigma": sum(v["ok_beyond_3sigma"] for v in sv),
-            }
+        for key in SURVEY_KEYS:
+            sv = [r[key][m] for r in ran if m in r.get(key, {}) and r[key][m]["n"]]
+            if sv:
+                n = sum(v["n"] for v in sv)
+                ms = sum(v["n"] * np.square(v["rms_z_xyz"]) for v in sv) / n
+                out[m][key] = {
+                    "n": n,
+                    "rms_z_xyz": np.sqrt(ms).round(3).tolist(),
+                    "ok": sum(v["ok"] for v in sv),
+                    "ok_beyond_3sigma": sum(v["ok_beyond_3sigma"] for v in sv),
+                }
     return out
 
 
@@ -723,11 +817,12 @@ def print_summary(s: dict) -> None:
             f"{r['ok']} ({frac:.1f}%, Gaussian {100 * GAUSS_BEYOND_3:.1f}%); worst ok "
             f"{_fmt(r['ok_max_m'])} m"
         )
-        if "surveys" in r:
-            v = r["surveys"]
+        for key in (k for k in SURVEY_KEYS if k in r):
+            v = r[key]
             print(
-                f"  {'':<9} more survey draws, pooled: rms(e/sigma) x y z {v['rms_z_xyz']}, "
-                f"ok beyond 3 sigma {v['ok_beyond_3sigma']} of {v['ok']}"
+                f"  {'':<9} more survey draws{' (oracle keypoints)' if key != 'surveys' else ''}"
+                f", pooled: rms(e/sigma) x y z {v['rms_z_xyz']}, ok beyond 3 sigma "
+                f"{v['ok_beyond_3sigma']} of {v['ok']}"
             )
 
 
@@ -749,6 +844,10 @@ def main(argv: list[str] | None = None) -> int:
         "--drop-lens-model", action="store_true",
         help="also estimate each distorted flight with camera.yaml's distortion dropped",
     )  # fmt: skip
+    ap.add_argument(
+        "--oracle", action="store_true",
+        help="also estimate each flight from its observations with true keypoints",
+    )  # fmt: skip
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     specs = QUICK_SET if args.quick else DEFAULT_SET
@@ -759,7 +858,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"flights in {work}")
     results = []
     for spec in specs:
-        results.append(evaluate(spec, work, args.rerun, args.surveys, args.drop_lens_model))
+        results.append(
+            evaluate(spec, work, args.rerun, args.surveys, args.drop_lens_model, args.oracle)
+        )
         print_flight(results[-1])
     summary = pooled(results)
     print_summary(summary)
