@@ -33,14 +33,28 @@ The result is a ``DecodeResult`` filled as the decoder fills it (keypoints,
 ellipse, ``sigma_inputs`` and ``keypoint_sigma_px`` from the same
 ``keypoint_sigmas``), so the sigma calibration holds for verified signs too.
 
-Cost: about 1.3 ms of CPU per verified sign on scripts/bench_frontend.py's
-crops (40 frames per flight, a loaded 2-core machine), four fifths of it in
-what the decoder does for an accepted reading, called here at the refit
-(``keypoint_noise.measure_parts`` about 0.5 ms, ``_accept_code`` 0.4 ms,
-``_read_slots`` twice 0.1 ms, ``_reading_result``, ``_fill_deficit``). Own
-copies of those checks fed from one remap of every sample were not written:
-they would have to follow each change of the decoder's acceptance by hand,
-and a copy that lags behind accepts, silently, what the decoder refuses.
+Cost: about 1 ms of CPU per verified sign on scripts/bench_frontend.py's
+crops, four fifths of it in what the decoder does for an accepted reading,
+called here at the refit. Medians over the simulator flight's 357 verified
+crops (40 frames, least of 5 runs each, committed tree of 2026-12-02):
+``_accept_code`` 298 us, ``keypoint_noise.measure_parts`` 159 us,
+``_read_slots`` 26 us twice, ``_reading_result`` 34 us, ``_fill_deficit``
+16 us; this module's own steps: ``_part_centroids`` 42 us, ``_refit`` 34 us,
+``_align`` 32 us, two disc ellipses 10 us. A verification makes about 900
+Python-level calls, 390 of them numpy's and 36 OpenCV's
+(``bench_frontend.py --profile track``). Own copies of the decoder's checks
+fed from one remap of every sample were not written: they would have to
+follow each change of the decoder's acceptance by hand, and a copy that
+lags behind accepts, silently, what the decoder refuses.
+
+Tried and dropped (2026-12-02): ``measure_parts`` batched over a frame's
+verified signs (checks per sign, then every sign's interior, outline and
+ring samples in one remap, the statistics as per-row reductions). The
+sigma model's owner changed ``measure_parts`` the same session (new pull,
+fill and side measures), so the copy was stale before its equality test
+ever passed; it was neither kept nor timed. Batching the own
+steps over a frame's signs would change what each starts from: each
+verification starts at the offset of the nearest sign already verified.
 """
 
 from __future__ import annotations
