@@ -28,7 +28,14 @@ from signpose.estimator.fusion import (
     on_smoother,
     pose_statuses,
 )
-from signpose.estimator.noise_scale import pixel_noise_scale, scaled_frames, scaled_pose
+from signpose.estimator.noise_scale import (
+    exact_map_pose,
+    inflated_pose,
+    pixel_noise_scale,
+    pose_noise_scale,
+    scaled_frames,
+    scaled_pose,
+)
 from signpose.estimator.perframe import (
     PER_FRAME_METHODS,
     FramePose,
@@ -54,6 +61,7 @@ from signpose.estimator.robust import (
     worst_innovations,
 )
 from signpose.estimator.smoother import (
+    FIXED,
     GNC,
     HUBER,
     TUKEY,
@@ -66,6 +74,7 @@ from signpose.estimator.smoother import (
     residuals_px,
     smooth_batch,
     smooth_isam2,
+    whitened_chi2,
 )
 from signpose.estimator.status import (
     PoseState,
@@ -151,7 +160,11 @@ class MethodEstimate:
         world_T_cam: (N, 4, 4) camera poses; identity where not ``valid``.
         valid: (N,) True where the method gives a pose.
         sigma_xyz: (N, 3) position standard deviation, world axes [m]; NaN
-            where unknown (per-frame methods, or sigmas not computed).
+            where unknown (sigmas not computed, the baseline: see
+            ``BASELINE_SIGMAS``). PnP's is the pixel noise and, unless the map
+            is taken as exact, the survey error of the signs the frame sees
+            (the same error for every frame that sees them: it does not
+            average out over frames); the smoother's is its marginal.
         signs_used: (N,) distinct map signs used per frame.
         status: (N,) how far each pose can be trusted (a PoseStatus), or why
             there is none (a PoseFailure).
@@ -241,6 +254,10 @@ class EstimateResult:
             None without telemetry.
         pixel_noise_scale: the factor (>= 1) every keypoint sigma was scaled
             by (``estimator.noise_scale``; 1.0: none).
+        pose_noise_scale: the factor (>= 1) the PnP and smoothed pose sigmas
+            were scaled by after that, from PnP's scatter about the smoothed
+            trajectory (``noise_scale.pose_noise_scale``; map taken as exact
+            only; 1.0: none).
     """
 
     methods: dict[str, MethodEstimate]
@@ -252,10 +269,18 @@ class EstimateResult:
     motion: MotionChoice | None = None
     fusion: FusionResult | None = None
     pixel_noise_scale: float = 1.0
+    pose_noise_scale: float = 1.0
 
 
 # A per-frame pose spends six of its residuals' degrees of freedom on itself.
 POSE_DOF = 6
+# The baseline writes no sigmas (empty fields): the paper's homography method
+# has no noise model to propagate. Its errors come from the method (signs off
+# one plane, the decomposition's fix-ups), not the keypoint noise: the inverse
+# Fisher information of its keypoints claimed 8-370x less than its errors on
+# rendered orbits (scripts/eval_pose_sigma.py), and a sigma a user cannot bet
+# on is worse than none. Its status still tests its residuals.
+BASELINE_SIGMAS = False
 
 
 def _position_sigmas(cov6: np.ndarray | None, world_T_cam: np.ndarray) -> np.ndarray:
@@ -269,7 +294,9 @@ def _position_sigmas(cov6: np.ndarray | None, world_T_cam: np.ndarray) -> np.nda
 def _from_frame_poses(
     name: str, stamps: np.ndarray, poses: list[FramePose], st: StatusSettings
 ) -> MethodEstimate:
+    """A per-frame method's trajectory; statuses test ``chi2_map`` (the map as it is taken)."""
     n = len(poses)
+    write_sigma = name != "baseline" or BASELINE_SIGMAS
     T = np.tile(np.eye(4), (n, 1, 1))
     valid = np.zeros(n, bool)
     sigma = np.full((n, 3), np.nan)
@@ -278,10 +305,11 @@ def _from_frame_poses(
         if p.world_T_cam is not None and np.all(np.isfinite(p.world_T_cam)):
             T[i] = p.world_T_cam
             valid[i] = True
-            sigma[i] = _position_sigmas(p.cov6, p.world_T_cam)
+            if write_sigma:
+                sigma[i] = _position_sigmas(p.cov6, p.world_T_cam)
             worst = worst_axis_sigma(p.cov6, p.world_T_cam[:3, :3])
             dof = max(2 * p.keypoints_used - POSE_DOF, 0)
-            status.append(classify(p.keypoints_used, worst, p.chi2, dof, st))
+            status.append(classify(p.keypoints_used, worst, p.chi2_map, dof, st))
         else:
             status.append(p.reason or PoseFailure.NONFINITE)
     return MethodEstimate(
@@ -309,7 +337,7 @@ def _smoothed_status(
         lm = kept.landmark[ids]
         sign_id = np.unique(np.asarray(kept.landmark_code)[lm], return_inverse=True)[1]
         cov = pose_covariance(
-            camera, T, world, kept.sigma_px[ids], kept.landmark_sigma_m[lm], sign_id
+            camera, T, world, kept.axis_sigmas()[ids], kept.landmark_sigma_m[lm], sign_id
         )
         return worst_axis_sigma(cov, T[:3, :3])
 
@@ -462,7 +490,7 @@ def _outliers(
 ) -> tuple[tuple[Outlier, ...], tuple[Misdecode, ...]]:
     k = settings.smoother.huber_k
     res = residuals_px(meas, r, camera)
-    whitened = res / meas.sigma_px
+    whitened = np.sqrt(whitened_chi2(meas, r, camera))
     gated = np.zeros(len(res), bool) if gated is None else gated
     down = np.nonzero((whitened > k) | gated)[0]
     outliers = tuple(
@@ -543,6 +571,7 @@ class _SmoothedRun:
     motion: MotionChoice | None
     timing_s: dict[str, float]
     fusion: FusionResult | None = None  # with telemetry: "fused" is in methods
+    pose_scale: float = 1.0  # see EstimateResult.pose_noise_scale
 
 
 def _rejections(
@@ -623,7 +652,7 @@ def _final_solve(
     kept = p.meas.subset(active)
     r = smooth_batch(kept, p.stamps, list(r.world_T_cam), p.camera, smoother, p.default)
     ids = np.nonzero(active)[0]
-    chi2 = (residuals_px(kept, r, p.camera) / kept.sigma_px) ** 2
+    chi2 = whitened_chi2(kept, r, p.camera)
     if kernel == GNC:
         out, test, threshold = r.weights < 0.5, RejectionTest.GNC, smoother.gnc_chi2
     else:
@@ -687,6 +716,7 @@ def _smoothed(
         if s.final_kernel == HUBER:  # no final solve to carry the chosen prior
             r = smooth_batch(kept, stamps, list(r.world_T_cam), camera, motion.settings, p.default)
     r, by_kernel = _final_solve(p, r, active)
+    r, pose_scale = _pose_scaled(r, per_frame["pnp"], s)
     timing = {"smoothed": time.perf_counter() - t0, "sigmas": r.sigma_seconds}
     status = _smoothed_status(meas.subset(active), r, camera, s.status)
     methods = {"smoothed": _from_smoother("smoothed", stamps, r, status=status)}
@@ -708,7 +738,24 @@ def _smoothed(
         motion=motion,
         timing_s=timing,
         fusion=fused,
+        pose_scale=pose_scale,
     )
+
+
+def _pose_scaled(
+    r: SmootherResult, pnp: list[FramePose], s: EstimatorSettings
+) -> tuple[SmootherResult, float]:
+    """``r`` with its covariances scaled by the pose noise scale squared, and the scale.
+
+    Only with the map taken as exact (``noise_scale.pose_noise_scale``).
+    """
+    if not s.scale_pixel_noise or s.smoother.landmarks != FIXED:
+        return r, 1.0
+    scale = pose_noise_scale(pnp, r.world_T_cam, r.cov6)
+    if scale == 1.0:
+        return r, scale
+    cov6 = None if r.cov6 is None else r.cov6 * scale**2
+    return replace(r, cov6=cov6, sigma_xyz=r.sigma_xyz * scale), scale
 
 
 def per_frame_methods(s: EstimatorSettings) -> tuple[str, ...]:
@@ -776,7 +823,13 @@ def _noise_scaled(
     s: EstimatorSettings,
 ) -> tuple[dict[str, list[FramePose]], float, Sequence[FrameObservations]]:
     """The per-frame poses and the frames with the flight's pixel noise scale
-    (``estimator.noise_scale``) applied, and the scale."""
+    (``estimator.noise_scale``) applied, and the scale.
+
+    With the map taken as exact (landmarks ``fixed``) the poses' covariances
+    and chi-squares lose their survey share first.
+    """
+    if s.smoother.landmarks == FIXED:
+        per_frame = {k: [exact_map_pose(p) for p in v] for k, v in per_frame.items()}
     if not s.scale_pixel_noise or "pnp" not in per_frame:
         return per_frame, 1.0, frames
     scale = pixel_noise_scale(per_frame["pnp"])
@@ -829,19 +882,17 @@ def estimate_trajectories(
         frames, sign_map, camera, s, progress, solved_pnp, timing, per_frame_done
     )
     per_frame, scale, scaled = _noise_scaled(frames, per_frame, s)
+    run = None  # the smoother, with the sigmas the PnP residuals support
+    if "smoothed" in wanted:
+        run = _smoothed(scaled, sign_map, camera, s, per_frame, progress, telemetry, fusion)
+    pose_scale = 1.0 if run is None else run.pose_scale
     for name, poses in per_frame.items():
         if name in wanted:
+            poses = [inflated_pose(p, pose_scale) for p in poses] if name == "pnp" else poses
             methods[name] = _from_frame_poses(name, stamps, poses, s.status)
-    down: tuple[Outlier, ...] = ()
-    mis: tuple[Misdecode, ...] = ()
-    rejected_obs: tuple[Rejection, ...] = ()
-    motion = fused = None
-    if "smoothed" in wanted:  # with the sigmas the PnP residuals support
-        run = _smoothed(scaled, sign_map, camera, s, per_frame, progress, telemetry, fusion)
+    if run is not None:
         methods.update(run.methods)
         timing.update(run.timing_s)
-        down, mis, rejected_obs = run.downweighted, run.misdecoded, run.rejected
-        motion, fused = run.motion, run.fusion
     if "smoothed" in methods:
         check_orientations(frames, sign_map, camera, methods["smoothed"])
     base = per_frame.get("baseline", ())
@@ -852,14 +903,15 @@ def estimate_trajectories(
         signs_seen=signs_seen,
         settings=s,
         outliers=OutlierReport(
-            downweighted=down,
-            misdecoded=mis,
+            downweighted=() if run is None else run.downweighted,
+            misdecoded=() if run is None else run.misdecoded,
             baseline_rejected=rejected,
             unknown_codes=unknown,
-            rejected=rejected_obs,
+            rejected=() if run is None else run.rejected,
         ),
         timing_s=timing,
-        motion=motion,
-        fusion=fused,
+        motion=None if run is None else run.motion,
+        fusion=None if run is None else run.fusion,
         pixel_noise_scale=scale,
+        pose_noise_scale=pose_scale,
     )

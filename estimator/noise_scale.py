@@ -31,6 +31,13 @@ from signpose.frontend.observations import FrameObservations, SignObservation
 
 # A pose spends six of its residuals' degrees of freedom on itself.
 _POSE_DOF = 6
+# The quantile of the frames' position-difference chi-squares the pose scale
+# matches, and chi-square(3)'s value there.
+_POSE_QUANTILE = 0.75
+_CHI2_3_AT_QUANTILE = 4.108345
+# A difference covariance whose smallest eigenvalue is below this share of its
+# largest says the smoother is not (much) better than PnP along some axis: skipped.
+_MIN_DIFFERENCE_SHARE = 1e-3
 # Fewer posed frames than this say too little about the noise: no scale.
 MIN_FRAMES = 10
 
@@ -38,27 +45,54 @@ MIN_FRAMES = 10
 def pixel_noise_scale(poses: Sequence[FramePose], min_frames: int = MIN_FRAMES) -> float:
     """The factor (>= 1) by which the keypoints' sigmas understate their scatter.
 
+    Each frame's ``chi2_map`` whitens its residuals by the pixel noise and
+    the map's survey noise together: a surveyed map's own error (1 cm per
+    sign is ~0.4 px at 27 m, ten times the decoder's sigmas on a clean
+    flight) is not pixel noise. Taken as pixel noise (``chi2`` alone), a
+    map with 1 cm survey errors scaled every sigma by 5-13 on rendered
+    orbits where the keypoints' own scatter was 1.05-1.15 times their sigma
+    (scripts/eval_pose_sigma.py). For an exact map (``exact_map_pose``)
+    ``chi2_map`` is ``chi2``.
+
     Args:
-        poses: per-frame PnP poses (``FramePose.chi2`` and ``keypoints_used``).
+        poses: per-frame PnP poses (``FramePose.chi2_map`` and ``keypoints_used``).
         min_frames: below this many posed frames with residual freedom, 1.0.
     """
     ratios = []
     for p in poses:
         dof = 2 * p.keypoints_used - _POSE_DOF
-        if p.world_T_cam is None or dof < 2 or not math.isfinite(p.chi2):
+        if p.world_T_cam is None or dof < 2 or not math.isfinite(p.chi2_map):
             continue
-        ratios.append(p.chi2 / dof / (1.0 - 2.0 / (9.0 * dof)) ** 3)
+        ratios.append(p.chi2_map / dof / (1.0 - 2.0 / (9.0 * dof)) ** 3)
     if len(ratios) < min_frames:
         return 1.0
     return max(1.0, math.sqrt(float(np.median(ratios))))
 
 
+def exact_map_pose(p: FramePose) -> FramePose:
+    """``p`` for a map taken as exact: no survey share in its covariance or chi-square."""
+    return replace(p, cov6=p.cov6_pixel, chi2_map=p.chi2)
+
+
 def scaled_pose(p: FramePose, scale: float) -> FramePose:
-    """``p`` as if its keypoints' sigmas were ``scale`` times larger."""
+    """``p`` as if its keypoints' sigmas were ``scale`` times larger.
+
+    Only the pixel noise's share of the covariance grows (the survey's is
+    the map's, not the decoder's). ``chi2_map`` is divided by ``scale**2``
+    like the pixel-only ``chi2``: the scale was measured on it as a factor
+    of the whole residual covariance, so that a median frame keeps ratio 1.
+    """
     if scale == 1.0 or p.world_T_cam is None:
         return p
-    cov6 = None if p.cov6 is None else p.cov6 * scale**2
-    return replace(p, cov6=cov6, chi2=p.chi2 / scale**2)
+    cov6, pixel = p.cov6, p.cov6_pixel
+    if pixel is not None:
+        cov6 = None if cov6 is None else cov6 + (scale**2 - 1.0) * pixel
+        pixel = pixel * scale**2
+    elif cov6 is not None:  # no split known: all of it is the pixels'
+        cov6 = cov6 * scale**2
+    return replace(
+        p, cov6=cov6, cov6_pixel=pixel, chi2=p.chi2 / scale**2, chi2_map=p.chi2_map / scale**2
+    )
 
 
 def _scaled_sign(o: SignObservation, scale: float) -> SignObservation:
@@ -74,3 +108,65 @@ def scaled_frames(frames: Sequence[FrameObservations], scale: float) -> Sequence
         replace(f, signs=tuple(_scaled_sign(o, scale) for o in f.signs)) if f.signs else f
         for f in frames
     ]
+
+
+def pose_noise_scale(
+    poses: Sequence[FramePose],
+    world_T_cam: np.ndarray,
+    cov6: np.ndarray | None,
+    min_frames: int = MIN_FRAMES,
+) -> float:
+    """The factor (>= 1) by which the pose sigmas understate the poses' scatter.
+
+    Keypoint errors shared by a frame's keypoints in the pattern a pose
+    change makes (all signs read a little to one side) leave no residual:
+    ``pixel_noise_scale`` cannot see them, yet they move every pose. What
+    they do show is PnP's frame-to-frame scatter about the smoothed
+    trajectory: with both models right, PnP minus smoothed has the
+    covariance PnP's minus the smoother's (the smoother uses every frame's
+    information and more), so ``d^T (C_pnp - C_smoothed)^-1 d`` is
+    chi-square with 3 dof per frame. The scale matches the frames' 75th
+    percentile to chi-square(3)'s (4.108), square-rooted; never below 1. A
+    quantile, so that a quarter of wild frames cannot move it; the 75th, not
+    the median, because these errors come in bursts (a fast stretch of the
+    flight) whose spread is heavier than Gaussian: on 8 rendered orbits
+    (clean and hard, seeds 5-8) with the map fixed, ``ok`` smoothed poses
+    beyond 3 sigma on an axis were 30 of 1390 with the median, 15 with the
+    75th percentile (Gaussian: 0.8 %, 11), 40 without the scale. Errors
+    shared over more frames than the smoother averages stay unseen.
+
+    Only for a map taken as exact: with a survey prior PnP's survey share
+    (each frame's own reading of the map's error, up to 0.3 m across the
+    view) dominates the difference and says nothing of the pixels.
+
+    Args:
+        poses: the per-frame PnP poses (``cov6``: their pixel covariance).
+        world_T_cam: (N, 4, 4) the smoothed poses of the same frames.
+        cov6: (N, 6, 6) their marginal covariances, or None (then 1.0).
+        min_frames: below this many frames to compare, 1.0.
+    """
+    if cov6 is None:
+        return 1.0
+    ratios = []
+    for i, p in enumerate(poses):
+        if p.world_T_cam is None or p.cov6 is None or not np.all(np.isfinite(cov6[i])):
+            continue
+        r_pnp, r_sm = p.world_T_cam[:3, :3], world_T_cam[i][:3, :3]
+        c = r_pnp @ p.cov6[3:, 3:] @ r_pnp.T - r_sm @ cov6[i][3:, 3:] @ r_sm.T
+        eig = np.linalg.eigvalsh(0.5 * (c + c.T))
+        if not eig[0] > _MIN_DIFFERENCE_SHARE * eig[-1]:
+            continue
+        d = p.world_T_cam[:3, 3] - world_T_cam[i][:3, 3]
+        ratios.append(float(d @ np.linalg.solve(c, d)))
+    if len(ratios) < min_frames:
+        return 1.0
+    return max(1.0, math.sqrt(float(np.quantile(ratios, _POSE_QUANTILE)) / _CHI2_3_AT_QUANTILE))
+
+
+def inflated_pose(p: FramePose, scale: float) -> FramePose:
+    """``p`` with its covariance ``scale**2`` times larger (its residuals' chi-squares kept)."""
+    if scale == 1.0 or p.world_T_cam is None:
+        return p
+    cov6 = None if p.cov6 is None else p.cov6 * scale**2
+    pixel = None if p.cov6_pixel is None else p.cov6_pixel * scale**2
+    return replace(p, cov6=cov6, cov6_pixel=pixel)

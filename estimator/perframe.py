@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 from signpose.estimator.camera import CameraModel, undistort_px
-from signpose.estimator.projection import pose_covariance
+from signpose.estimator.projection import PoseFit, pixels_and_pose_jacobian, pose_fit
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 from tqdm import tqdm
@@ -96,11 +96,18 @@ class FramePose:
         signs_used: number of distinct map signs that went into the solve.
         inlier_codes: codes of the signs kept (RANSAC inliers).
         rms_px: RMS reprojection error of the inliers [px] (NaN without pose).
-        cov6: (6, 6) covariance of the pose from its inlier keypoints alone
-            (inverse Fisher information with the pixel and survey noise;
-            gtsam's order [rotation, translation], camera frame), or None.
+        cov6: (6, 6) covariance of the pose from its inlier keypoints alone,
+            the pixel noise and the map's survey error propagated through the
+            pixel-weighted fit (``projection.pose_fit``; gtsam's order
+            [rotation, translation], camera frame), or None.
         keypoints_used: number of inlier keypoints.
-        chi2: sum of the inliers' whitened squared residuals (NaN without pose).
+        chi2: sum of the inliers' squared residuals whitened by their pixel
+            sigmas (NaN without pose).
+        cov6_pixel: the pixel noise's share of ``cov6`` (independent from
+            frame to frame; the rest, the survey's, is the same error for
+            every frame that sees the same signs), or None.
+        chi2_map: the residuals' chi-square with the survey noise too
+            (``PoseFit.chi2_map``; NaN without pose).
     """
 
     frame: int
@@ -113,6 +120,8 @@ class FramePose:
     cov6: np.ndarray | None = None
     keypoints_used: int = 0
     chi2: float = float("nan")
+    cov6_pixel: np.ndarray | None = None
+    chi2_map: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -120,26 +129,62 @@ class _Correspondences:
     codes: list[str]  # one per point
     names: list[str]
     world: np.ndarray  # (N, 3)
-    px: np.ndarray  # (N, 2) undistorted pixels
-    sigma_px: np.ndarray  # (N,) pixel sigma of each point
+    px: np.ndarray  # (N, 2) undistorted pixels (skew-free, see _correspondences)
+    sigma_px: np.ndarray  # (N, 2) pixel sigma of each point per image axis (u, v)
     sigma_m: np.ndarray  # (N,) survey sigma of each point [m]
 
     def fit(self, camera: CameraModel, world_T_cam: np.ndarray, inliers: np.ndarray) -> dict:
         """FramePose fields describing how well the inliers fix and fit the pose."""
-        err, _ = _reproject_errors(camera, world_T_cam, self.world[inliers], self.px[inliers])
+        pin = _pinhole(camera)
+        uv, _, _ = pixels_and_pose_jacobian(pin, world_T_cam, self.world[inliers])
         sign_id = np.unique(np.asarray(self.codes), return_inverse=True)[1].reshape(-1)
+        f: PoseFit = pose_fit(
+            pin,
+            world_T_cam,
+            self.world[inliers],
+            self.px[inliers] - uv,
+            self.sigma_px[inliers],
+            self.sigma_m[inliers],
+            sign_id[inliers],
+        )
         return {
-            "cov6": pose_covariance(
-                camera,
-                world_T_cam,
-                self.world[inliers],
-                self.sigma_px[inliers],
-                self.sigma_m[inliers],
-                sign_id[inliers],
-            ),
+            "cov6": f.cov6,
+            "cov6_pixel": f.cov6_pixel,
             "keypoints_used": int(inliers.sum()),
-            "chi2": float(np.sum((err / self.sigma_px[inliers]) ** 2)),
+            "chi2": f.chi2_pixel,
+            "chi2_map": f.chi2_map,
         }
+
+
+def _pinhole(camera: CameraModel) -> CameraModel:
+    """The camera without its skew: the model of ``_Correspondences.px``."""
+    if camera.K[0, 1] == 0.0:
+        return camera
+    K = np.array(camera.K, float)
+    K[0, 1] = 0.0
+    return replace(camera, K=K)
+
+
+def keypoint_sigmas(obs, name: str) -> tuple[float, float]:
+    """(sigma_u, sigma_v) [px] of one keypoint of a sign observation.
+
+    The decoder's per-keypoint, per-axis ``keypoint_sigma_px`` where it gave
+    one, but never below the observation's single ``sigma_px`` (which holds
+    on both axes where there is none). A keypoint the decoder saw worse than
+    its sign (beside an occluder, blurred along one axis) weighs less; one it
+    claims better than its sign does not weigh more: on rendered orbits those
+    claims were not borne out. Keypoints claimed below 0.8 of their sign's
+    sigma erred 0.105 / 0.086 px (u / v) on the hard flights, more than the
+    others (0.077-0.10), rms(error / sigma) 1.44 / 1.48 with their own sigma
+    against 0.91 / 1.02 with the sign's; the smoother with the exact map
+    fixed then had ``ok`` poses beyond 3 sigma 7 -> 24 of ~355 and RMSE z
+    7.5 -> 8.8 mm (seeds 5, 6). Above the sign's sigma the keypoint's own is
+    the better one (1.33 / 1.37 against 1.61 / 1.68).
+    """
+    kp = obs.keypoint_sigma_px.get(name)
+    if kp is None:
+        return (obs.sigma_px, obs.sigma_px)
+    return (max(float(kp[0]), obs.sigma_px), max(float(kp[1]), obs.sigma_px))
 
 
 def _correspondences(
@@ -159,7 +204,7 @@ def _correspondences(
                 names.append(name)
                 world.append(X)
                 raw.append(obs.keypoints_px[name])
-                sig_px.append(obs.sigma_px)
+                sig_px.append(keypoint_sigmas(obs, name))
                 sig_m.append(sign.sigma_m)
     world_a = np.asarray(world, dtype=float).reshape(-1, 3)
     px = undistort_px(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
@@ -168,7 +213,12 @@ def _correspondences(
     if camera.K[0, 1] != 0.0:
         px[:, 0] -= camera.K[0, 1] * (px[:, 1] - camera.cy) / camera.fy
     return _Correspondences(
-        codes, names, world_a, px, np.asarray(sig_px, float), np.asarray(sig_m, float)
+        codes,
+        names,
+        world_a,
+        px,
+        np.asarray(sig_px, float).reshape(-1, 2),
+        np.asarray(sig_m, float),
     )
 
 
@@ -521,8 +571,10 @@ def solve_frame_pnp(
         warm, accept = _warm_candidate(p, camera, prior_world_T_cam, s)
         if accept:
             T = _pose_from_rt(cv2.Rodrigues(warm[0])[0], warm[1].reshape(3))
+            every = np.ones(len(c.world), bool)
+            T = _weighted_refine(camera, T, c, every)
             rms, _ = _reproject_rms(camera, T, c.world, c.px)
-            return posed(T, distinct, rms_px=rms, **c.fit(camera, T, np.ones(len(c.world), bool)))
+            return posed(T, distinct, rms_px=rms, **c.fit(camera, T, every))
         if warm is not None:
             candidates.append(warm)
     cold, inliers = _cold_candidates(p, s)
@@ -530,7 +582,56 @@ def solve_frame_pnp(
     if best is None:
         return posed(None, distinct, reason=PoseFailure.PNP)
     used = tuple(sorted({code for code, ok in zip(c.codes, inliers, strict=True) if ok}))
-    return posed(best[0], used, rms_px=best[1], **c.fit(camera, best[0], inliers))
+    T = _weighted_refine(camera, best[0], c, inliers)
+    rms = best[1] if T is best[0] else _reproject_rms(camera, T, c.world[inliers], c.px[inliers])[0]
+    return posed(T, used, rms_px=rms, **c.fit(camera, T, inliers))
+
+
+# Gauss-Newton steps of the weighted refinement, and the step [rad or m] below which it stops.
+_WEIGHTED_STEPS = 5
+_WEIGHTED_TOL = 1e-10
+
+
+def _weighted_refine(
+    camera: CameraModel, world_T_cam: np.ndarray, c: _Correspondences, inliers: np.ndarray
+) -> np.ndarray:
+    """The pose minimising the inliers' residuals whitened per keypoint and axis.
+
+    OpenCV's Levenberg-Marquardt weighs every pixel alike; where the
+    keypoints' sigmas differ (a keypoint beside an occluder, a blurred axis)
+    a few Gauss-Newton steps from its solution weigh each residual by its
+    sigma, so that the pose is the one ``_Correspondences.fit``'s covariance
+    describes. Equal sigmas: the same pose, returned as is. A step that does
+    not lower the weighted error, or leaves a point behind the camera, ends it.
+    """
+    sig = c.sigma_px[inliers]
+    if sig.size == 0 or np.all(sig == sig.flat[0]):
+        return world_T_cam
+    pin = _pinhole(camera)
+    X, px, w = c.world[inliers], c.px[inliers], 1.0 / sig.reshape(-1) ** 2
+    T = world_T_cam
+    uv, J, _ = pixels_and_pose_jacobian(pin, T, X)
+    r = (px - uv).reshape(-1)
+    err = float(r @ (w * r))
+    for _ in range(_WEIGHTED_STEPS):
+        Jf = J.reshape(-1, 6)
+        try:
+            xi = np.linalg.solve(Jf.T @ (w[:, None] * Jf), Jf.T @ (w * r))
+        except np.linalg.LinAlgError:
+            break
+        new = T.copy()  # world_T_cam * Exp(xi), xi = [omega, v] in the camera frame
+        new[:3, :3] = _orthonormal(T[:3, :3] @ cv2.Rodrigues(xi[:3].reshape(3, 1))[0])
+        new[:3, 3] = T[:3, 3] + T[:3, :3] @ xi[3:]
+        uv, J_new, _ = pixels_and_pose_jacobian(pin, new, X)
+        r_new = (px - uv).reshape(-1)
+        err_new = float(r_new @ (w * r_new))
+        depth_ok = np.all(((X - new[:3, 3]) @ new[:3, :3])[:, 2] > 0)
+        if not (np.isfinite(err_new) and err_new <= err and depth_ok):
+            break
+        T, J, r, err = new, J_new, r_new, err_new
+        if np.max(np.abs(xi)) < _WEIGHTED_TOL:
+            break
+    return T
 
 
 @dataclass(frozen=True)

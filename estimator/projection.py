@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from signpose.estimator.camera import CameraModel
@@ -93,11 +94,18 @@ def pose_information(
     """(6, 6) Fisher information of one pose from keypoints with known world positions.
 
     Args:
-        world_p: (K, 3) world points [m]; sigma_px: (K,) pixel sigma of each.
+        world_p: (K, 3) world points [m]; sigma_px: (K,) pixel sigma of each, or
+            (K, 2) per image axis (u, v).
     """
     _, J, _ = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
-    w = 1.0 / np.asarray(sigma_px, float).reshape(-1) ** 2
-    return np.einsum("k,kai,kaj->ij", w, J, J)
+    w = 1.0 / axis_sigmas(sigma_px, len(J)) ** 2
+    return np.einsum("ka,kai,kaj->ij", w, J, J)
+
+
+def axis_sigmas(sigma_px: np.ndarray, k: int) -> np.ndarray:
+    """(K, 2) per-axis pixel sigmas from (K,) isotropic or (K, 2) per-axis ones."""
+    sp = np.asarray(sigma_px, float)
+    return np.repeat(sp.reshape(-1, 1), 2, axis=1) if sp.size == k else sp.reshape(k, 2)
 
 
 def position_cov_world(cov6: np.ndarray, world_R_cam: np.ndarray) -> np.ndarray:
@@ -149,8 +157,9 @@ def pose_covariance(
     centre gives it); without, every keypoint's is independent.
 
     Args:
-        world_p: (K, 3) world points [m]; sigma_px: (K,) pixel sigmas;
-        sigma_m: (K,) survey sigmas [m]; sign_id: (K,) sign of each point, or None.
+        world_p: (K, 3) world points [m]; sigma_px: (K,) pixel sigmas, or (K, 2)
+        per image axis; sigma_m: (K,) survey sigmas [m]; sign_id: (K,) sign of
+        each point, or None.
 
     Returns:
         The covariance ([rotation, translation], camera frame), or None when
@@ -160,7 +169,7 @@ def pose_covariance(
     if k < 3:
         return None
     _, J, J_point = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
-    sp = np.asarray(sigma_px, float).reshape(-1)
+    sp = axis_sigmas(sigma_px, k)
     sm = np.asarray(sigma_m, float).reshape(-1)
     same = np.eye(k, dtype=bool) if sign_id is None else sign_id[:, None] == sign_id[None, :]
     # (2K, 2K): blocks J_a sigma^2 J_b^T between keypoints a, b of one sign.
@@ -168,9 +177,134 @@ def pose_covariance(
         np.einsum("aij,bkj->aibk", J_point, J_point)
         * (same * sm[:, None] * sm[None, :])[:, None, :, None]
     )
-    C = survey.reshape(2 * k, 2 * k) + np.diag(np.repeat(sp**2, 2))
+    C = survey.reshape(2 * k, 2 * k) + np.diag(sp.reshape(-1) ** 2)
     Jf = J.reshape(2 * k, 6)
     info = Jf.T @ np.linalg.solve(C, Jf)
     if np.linalg.cond(info) > MAX_CONDITION:
         return None
     return np.linalg.inv(info)
+
+
+@dataclass(frozen=True)
+class PoseFit:
+    """How a frame's keypoints fix and fit a pose estimated with pixel weights.
+
+    The pose is the weighted least-squares one (each residual axis weighted
+    by its pixel sigma, the map taken as given). Its error has two parts:
+    the pixel noise, independent from frame to frame, and the survey error
+    of the signs it sees, the same for every frame that sees those signs
+    (correlated over the flight). Both are propagated through the same
+    estimator (a sandwich, not the inverse information of a weighting the
+    estimate did not use).
+
+    Attributes:
+        cov6_pixel: (6, 6) covariance from the pixel noise alone ([rotation,
+            translation], camera frame), or None when the keypoints do not
+            fix all six degrees of freedom.
+        cov6_survey: (6, 6) the survey error's share (zero for an exact map), or None.
+        chi2_pixel: the residuals whitened by the pixel sigmas, squared and
+            summed (chi-square with 2K - 6 dof when the map is exact).
+        chi2_map: the residuals' chi-square with the survey noise too: the
+            generalised least-squares refit of the residuals with the pixel
+            plus survey covariance (chi-square with 2K - 6 dof when both
+            the pixel sigmas and the survey sigmas are right).
+    """
+
+    cov6_pixel: np.ndarray | None
+    cov6_survey: np.ndarray | None
+    chi2_pixel: float
+    chi2_map: float
+
+    @property
+    def cov6(self) -> np.ndarray | None:
+        """(6, 6) total covariance: pixel noise and the survey error, or None."""
+        if self.cov6_pixel is None or self.cov6_survey is None:
+            return None
+        return self.cov6_pixel + self.cov6_survey
+
+
+def survey_columns(
+    J_point: np.ndarray, sigma_m: np.ndarray, sign_id: np.ndarray | None
+) -> np.ndarray:
+    """(2K, 3S) how the survey errors move the pixels, in units of their sigma.
+
+    Column block s is the pixels' Jacobian with respect to a shift of sign s
+    (rigid: shared by its keypoints) times its survey sigma; without
+    ``sign_id`` every keypoint is its own sign.
+
+    Args:
+        J_point: (K, 2, 3) d(pixel)/d(world point); sigma_m: (K,) survey sigma [m];
+        sign_id: (K,) sign index of each keypoint (0..S-1), or None.
+    """
+    k = len(J_point)
+    sid = np.arange(k) if sign_id is None else np.asarray(sign_id, np.int64).reshape(-1)
+    n_signs = int(sid.max()) + 1 if k else 0
+    G = np.zeros((k, 2, n_signs, 3))
+    sm = np.asarray(sigma_m, float).reshape(-1)
+    G[np.arange(k), :, sid, :] = J_point * sm[:, None, None]
+    return G.reshape(2 * k, 3 * n_signs)
+
+
+def pose_fit(
+    camera: CameraModel,
+    world_T_cam: np.ndarray,
+    world_p: np.ndarray,
+    residual_px: np.ndarray,
+    sigma_px: np.ndarray,
+    sigma_m: np.ndarray,
+    sign_id: np.ndarray | None = None,
+) -> PoseFit:
+    """Covariances and chi-squares of a pose fitted to its keypoints with pixel weights.
+
+    Args:
+        camera: the camera the pixels are of (its K, skew included).
+        world_T_cam: (4, 4) the pose.
+        world_p: (K, 3) world points [m].
+        residual_px: (K, 2) observed minus projected pixels at the pose.
+        sigma_px: (K,) or (K, 2) pixel sigmas (per image axis).
+        sigma_m: (K,) survey sigmas [m] (zeros: an exact map).
+        sign_id: (K,) sign of each point (its survey error a rigid shift), or None.
+    """
+    k = len(world_p)
+    sp = axis_sigmas(sigma_px, k).reshape(-1)
+    r = np.asarray(residual_px, float).reshape(-1)
+    w = 1.0 / sp**2
+    chi2_pixel = float(r @ (w * r))
+    if k < 3:
+        return PoseFit(None, None, chi2_pixel, chi2_pixel)
+    _, J, J_point = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
+    Jf = J.reshape(2 * k, 6)
+    info = Jf.T @ (w[:, None] * Jf)
+    G = survey_columns(J_point, sigma_m, sign_id)
+    if np.linalg.cond(info) > MAX_CONDITION:
+        return PoseFit(None, None, chi2_pixel, _chi2_map(Jf, r, w, G, chi2_pixel))
+    cov_px = np.linalg.inv(info)
+    AG = cov_px @ (Jf.T @ (w[:, None] * G))  # (6, 3S): pose error per unit survey error
+    cov_sv = AG @ AG.T
+    return PoseFit(
+        cov_px, 0.5 * (cov_sv + cov_sv.T), chi2_pixel, _chi2_map(Jf, r, w, G, chi2_pixel)
+    )
+
+
+def _chi2_map(Jf: np.ndarray, r: np.ndarray, w: np.ndarray, G: np.ndarray, chi2: float) -> float:
+    """min over xi of (r - J xi)^T C^-1 (r - J xi), C = diag(1 / w) + G G^T (Woodbury).
+
+    The residuals of a pixel-weighted fit refitted by generalised least
+    squares: the same as the generalised least-squares residuals of the
+    data, whatever weights the first fit used (both remove J's column space).
+    """
+    if G.size == 0 or not np.any(G):
+        return chi2
+    wG = w[:, None] * G
+    M = np.eye(G.shape[1]) + G.T @ wG
+
+    def c_inv(y: np.ndarray) -> np.ndarray:  # C^-1 y by Woodbury
+        wy = w[:, None] * y if y.ndim == 2 else w * y
+        return wy - wG @ np.linalg.solve(M, G.T @ wy)
+
+    try:
+        ci_r, ci_J = c_inv(r), c_inv(Jf)
+        g = Jf.T @ ci_r
+        return float(r @ ci_r - g @ np.linalg.solve(Jf.T @ ci_J, g))
+    except np.linalg.LinAlgError:
+        return float("nan")

@@ -154,6 +154,7 @@ def _joined(parts: list[Measurements]) -> tuple[Measurements, list[int]]:
         px=cat([m.px for m in parts]).reshape(-1, 2),
         sigma_px=cat([m.sigma_px for m in parts]),
         sign_index=cat([m.sign_index for m in parts]),
+        sigma_uv_px=cat([m.axis_sigmas() for m in parts]).reshape(-1, 2),
         n_frames=offset,
     )
     return joined, starts

@@ -6,16 +6,32 @@ import numpy as np
 import pytest
 from conftest import estimator_scene
 from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
-from signpose.estimator.noise_scale import pixel_noise_scale, scaled_frames, scaled_pose
+from signpose.estimator.noise_scale import (
+    exact_map_pose,
+    inflated_pose,
+    pixel_noise_scale,
+    pose_noise_scale,
+    scaled_frames,
+    scaled_pose,
+)
 from signpose.estimator.perframe import FramePose
 from signpose.estimator.status import PoseStatus
 
 
 def _poses(rng, n, scale, keypoints=20):
+    """Poses on an exact map: the chi-square with the survey noise is the pixel one."""
     dof = 2 * keypoints - 6
     chi2 = scale**2 * rng.chisquare(dof, n)
     return [
-        FramePose(i, i, np.eye(4), keypoints_used=keypoints, chi2=float(c), cov6=np.eye(6))
+        FramePose(
+            i,
+            i,
+            np.eye(4),
+            keypoints_used=keypoints,
+            chi2=float(c),
+            cov6=np.eye(6),
+            chi2_map=float(c),
+        )
         for i, c in enumerate(chi2)
     ]
 
@@ -40,8 +56,30 @@ def test_never_below_one_and_none_from_few_frames():
 def test_a_tenth_of_wild_frames_barely_moves_it():
     rng = np.random.default_rng(3)
     poses = _poses(rng, 300, 1.5)
-    wild = [replace(p, chi2=p.chi2 * 400) for p in poses[:30]]
+    wild = [replace(p, chi2=p.chi2 * 400, chi2_map=p.chi2 * 400) for p in poses[:30]]
     assert pixel_noise_scale(wild + poses[30:]) == pytest.approx(1.5, rel=0.12)
+
+
+def test_survey_errors_are_not_taken_as_pixel_noise():
+    # A surveyed map's own error inflates the pixel-only chi-square tenfold;
+    # whitened with the survey noise too, the residuals are as claimed.
+    rng = np.random.default_rng(4)
+    poses = [replace(p, chi2=100 * p.chi2) for p in _poses(rng, 300, 1.0)]
+    assert pixel_noise_scale(poses) == pytest.approx(1.0, abs=0.05)
+    assert pixel_noise_scale([exact_map_pose(p) for p in poses]) == pytest.approx(10.0, rel=0.05)
+
+
+def test_only_the_pixel_share_of_a_covariance_scales():
+    pixel, survey = np.diag([1.0, 1, 1, 2, 2, 2]), np.diag([0.0, 0, 0, 5, 5, 5])
+    p = FramePose(
+        0, 0, np.eye(4), keypoints_used=10, chi2=8.0, chi2_map=6.0,
+        cov6=pixel + survey, cov6_pixel=pixel,
+    )  # fmt: skip
+    q = scaled_pose(p, 2.0)
+    assert np.allclose(q.cov6_pixel, 4 * pixel) and np.allclose(q.cov6, 4 * pixel + survey)
+    assert q.chi2 == 2.0 and q.chi2_map == 1.5
+    e = exact_map_pose(p)
+    assert np.allclose(e.cov6, pixel) and e.chi2_map == 8.0
 
 
 def test_scaling_a_pose_and_frames():
@@ -116,3 +154,48 @@ def test_scaled_run_flags_as_the_honest_one_does(optimistic):
     c = np.nanmedian(honest.methods["smoothed"].sigma_xyz, axis=0)
     assert np.all(b > a) and np.max(b / a) > 1.2
     assert np.allclose(b, c, rtol=0.1)
+
+
+def _pose_pairs(rng, n, k):
+    """PnP poses scattering k times their claimed share about a smoothed trajectory."""
+    c_pnp, c_sm = np.diag([4e-4, 1e-4, 9e-4]), np.diag([1e-4, 2e-5, 1e-4])
+    cov_pnp, cov_sm = np.zeros((6, 6)), np.zeros((n, 6, 6))
+    cov_pnp[3:, 3:] = c_pnp
+    cov_sm[:, 3:, 3:] = c_sm
+    smoothed = np.tile(np.eye(4), (n, 1, 1))
+    d = rng.multivariate_normal(np.zeros(3), k**2 * (c_pnp - c_sm), n)
+    poses = []
+    for i in range(n):
+        T = np.eye(4)
+        T[:3, 3] = d[i]
+        poses.append(FramePose(i, i, T, keypoints_used=20, cov6=cov_pnp, cov6_pixel=cov_pnp))
+    return poses, smoothed, cov_sm
+
+
+@pytest.mark.parametrize("k", [1.0, 1.4, 2.0])
+def test_pose_scale_from_pnp_scatter_about_the_smoothed_poses(k):
+    rng = np.random.default_rng(5)
+    poses, smoothed, cov_sm = _pose_pairs(rng, 400, k)
+    assert pose_noise_scale(poses, smoothed, cov_sm) == pytest.approx(k, rel=0.08)
+    assert pose_noise_scale(poses, smoothed, None) == 1.0
+    assert pose_noise_scale(poses[:9], smoothed, cov_sm) == 1.0
+    q = inflated_pose(replace(poses[0], chi2=5.0, chi2_map=4.0), 2.0)
+    assert np.allclose(q.cov6, 4 * poses[0].cov6) and np.allclose(q.cov6_pixel, q.cov6)
+    assert (q.chi2, q.chi2_map) == (5.0, 4.0)  # the residuals' tests are not relaxed
+
+
+def test_pose_scale_never_below_one_and_skips_frames_the_smoother_does_not_improve():
+    rng = np.random.default_rng(6)
+    poses, smoothed, cov_sm = _pose_pairs(rng, 200, 0.5)
+    assert pose_noise_scale(poses, smoothed, cov_sm) == 1.0
+    poses, smoothed, _ = _pose_pairs(rng, 200, 3.0)
+    same = np.repeat(poses[0].cov6[None], 200, axis=0)  # no better than PnP: no test
+    assert pose_noise_scale(poses, smoothed, same) == 1.0
+
+
+def test_an_honest_flight_on_an_exact_map_keeps_its_pose_sigmas():
+    sign_map, camera, frames, _, _ = estimator_scene(n_frames=60, sigma_px=0.4, seed=4)
+    s = replace(EstimatorSettings(), methods=("pnp", "smoothed"))
+    s = replace(s, smoother=replace(s.smoother, landmarks="fixed"))
+    r = estimate_trajectories(frames, sign_map, camera, s, False)
+    assert 1.0 <= r.pose_noise_scale < 1.2
