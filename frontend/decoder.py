@@ -899,7 +899,7 @@ def _crossed_by_a_line(res: DecodeResult) -> DecodeResult:
     """
     if res.sigma_inputs is None:
         return res
-    inputs = replace(res.sigma_inputs, crossed=True)
+    inputs = replace(res.sigma_inputs, crossed=True, closed=True)
     sigmas = keypoint_sigmas(inputs, res.keypoint_sigma_px)
     return replace(
         res,

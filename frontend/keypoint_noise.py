@@ -16,6 +16,7 @@ the square of one thing the decoder measured (``variance_terms``):
               + (inside * [1 - inside_k - 5 noise]+ * minor)^2
               + (own_residual * own_k,a)^2
               + (crossed_px^2 + (crossed * minor)^2) [an occluder crosses the face]
+              + closed_px^2 [read through the "open" fallback]
               + (pull * pull_k,a)^2 + (stray_pull * stray_pull_k,a)^2
               + (fill * cut_k)^2 + (any_pull * max_j(|pull_j|, |stray_pull_j|, cut_j))^2
 
@@ -41,7 +42,7 @@ grid at 0.1-0.9 of its sides, over the samples: a line across one side);
 ``stray_pull_k,a`` the shift that the stray white on its grown outline
 predicts (glare on one side). ``cut_k`` [px] is how far the part's fill
 (1 - white area / projected area in the decoder's centroid window) departs
-from the sign's median fill, beyond 5 noise, times its longest side: a line
+from the sign's median fill, beyond one noise sigma, times its longest side: a line
 that cuts off a part's end moves its centroid while the homography, fitted
 through that centroid, carries the part's frame along, so the grid sees
 white throughout; the area does not follow. The median takes off the fill
@@ -81,10 +82,14 @@ TERMS: tuple[str, ...] = (
     "stray_pull",
     "fill",
     "any_pull",
+    "closed_px",
 )
 # Multiples of the noise taken off the spread and off the other shortfalls.
 _SPREAD_NOISE = 3.0
 _SHORTFALL_NOISE = 5.0
+# The fill is a sum over the whole window, far less noisy than one sample:
+# one noise sigma is taken off its departure from the median.
+_FILL_NOISE = 1.0
 
 
 @dataclass(frozen=True)
@@ -117,6 +122,10 @@ class KindNoise:
             any part of the sign [px]: with four parts or fewer the fit
             passes through every centroid, and one pulled part bends the
             homography that places the others.
+        closed_px: error added when the reading came through the decoder's
+            "open" fallback [px]: its centroids and every measure above were
+            taken on the crop with the thin dark line closed away, where
+            nothing of the line shows.
     """
 
     floor_px: float
@@ -134,6 +143,7 @@ class KindNoise:
     stray_pull: float = 0.0
     fill: float = 0.0
     any_pull: float = 0.0
+    closed_px: float = 0.0
 
     def coefficients(self) -> np.ndarray:
         """(len(TERMS),) the constants, in ``TERMS`` order."""
@@ -167,58 +177,64 @@ def kind_of(name: str) -> str:
 # against the simulator's truth (signpose.sim.crops, 12 conditions), the
 # constants as it prints them (rounded to 3 digits). Terms the fit drove to
 # ~0 stay in the model, a later calibration may need them. The pulls took
-# most of what spread, disturbance and crossed_px carried on centre and slot.
+# most of what spread, disturbance and crossed_px carried on centre and slot;
+# ``crossed`` (a fraction of the minor axis) is held at 0: fitted, it gave
+# the directional keypoint of every crossed reading a sigma of 0.1 minor
+# (5 px on a 50 px sign, errors there 0.1-0.5 px).
 SIGMA_MODEL = SigmaModel(
     center=KindNoise(
-        floor_px=0.0226,
-        size_px2=0.00719,
-        spread_px=0.323,
-        residual=0.000656,
-        disturbance=2.06e-09,
-        own_residual=1.32,
-        crossed_px=1.55e-05,
-        noise_px=0.0323,
+        floor_px=0.0206,
+        size_px2=0.00987,
+        spread_px=0.302,
+        residual=0.01,
+        disturbance=0.00582,
+        own_residual=5.58,
+        crossed_px=0.0137,
+        noise_px=0.0321,
         stray=0.0126,
-        inside=0.00893,
-        crossed=8.66e-07,
-        pull=1.03,
-        stray_pull=0.276,
-        fill=0.000616,
-        any_pull=0.0617,
+        inside=0.00477,
+        crossed=0,
+        pull=0.679,
+        stray_pull=0.293,
+        fill=0.0112,
+        any_pull=0.035,
+        closed_px=0.116,
     ),
     direction=KindNoise(
-        floor_px=0.0268,
-        size_px2=0.294,
-        spread_px=1.07,
-        residual=0.218,
-        disturbance=0.0242,
-        own_residual=0.0955,
-        crossed_px=0.377,
-        noise_px=0.103,
-        stray=0.0334,
-        inside=0.0251,
-        crossed=0.111,
-        pull=0.122,
-        stray_pull=0.0301,
-        fill=0.129,
-        any_pull=0.0251,
+        floor_px=0.0254,
+        size_px2=0.156,
+        spread_px=0.375,
+        residual=0.143,
+        disturbance=0.00315,
+        own_residual=0.0888,
+        crossed_px=0.227,
+        noise_px=0.106,
+        stray=0.0269,
+        inside=0.0423,
+        crossed=0,
+        pull=0.461,
+        stray_pull=0.931,
+        fill=0.0288,
+        any_pull=0.0101,
+        closed_px=0.427,
     ),
     slot=KindNoise(
-        floor_px=0.0226,
-        size_px2=2.06e-09,
-        spread_px=0.43,
-        residual=2.06e-09,
-        disturbance=4.36e-07,
-        own_residual=0.674,
-        crossed_px=4.02e-05,
-        noise_px=0.121,
-        stray=0.0185,
-        inside=0.00839,
-        crossed=2.56e-07,
-        pull=0.883,
-        stray_pull=0.319,
-        fill=0.146,
-        any_pull=0.0474,
+        floor_px=0.0216,
+        size_px2=0.00992,
+        spread_px=0.825,
+        residual=0.00998,
+        disturbance=0.00417,
+        own_residual=0.237,
+        crossed_px=0.0124,
+        noise_px=0.109,
+        stray=0.0207,
+        inside=0.00576,
+        crossed=0,
+        pull=0.441,
+        stray_pull=0.264,
+        fill=0.187,
+        any_pull=0.0147,
+        closed_px=0.0752,
     ),
 )
 
@@ -254,6 +270,8 @@ class SigmaInputs:
         part_fill: part name -> 1 - its white area over its projected area
             in its centroid window (NaN: not measured).
         part_side_px: part name -> its longest projected side [px].
+        closed: the reading came through the "open" fallback (a thin dark
+            line closed away before reading; ``crossed`` is set too).
     """
 
     minor_px: float
@@ -269,6 +287,7 @@ class SigmaInputs:
     part_stray_pull_px: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     part_fill: Mapping[str, float] = field(default_factory=dict)
     part_side_px: Mapping[str, float] = field(default_factory=dict)
+    closed: bool = False
 
 
 def part_residuals_px(
@@ -581,13 +600,14 @@ def variance_terms(inputs: SigmaInputs, name: str) -> np.ndarray:
     ]
     pull = inputs.part_pull_px.get(name, (0.0, 0.0))
     spull = inputs.part_stray_pull_px.get(name, (0.0, 0.0))
-    cuts = _cuts_px(inputs, short)
+    cuts = _cuts_px(inputs, _FILL_NOISE * noise)
     cut = cuts.get(name, 0.0) ** 2
     worst = _largest_pull_px(inputs, cuts) ** 2
+    closed = 1.0 if inputs.closed else 0.0
     return np.array(
         [
-            head + [own[0] ** 2] + tail + [pull[0] ** 2, spull[0] ** 2, cut, worst],
-            head + [own[1] ** 2] + tail + [pull[1] ** 2, spull[1] ** 2, cut, worst],
+            head + [own[0] ** 2] + tail + [pull[0] ** 2, spull[0] ** 2, cut, worst, closed],
+            head + [own[1] ** 2] + tail + [pull[1] ** 2, spull[1] ** 2, cut, worst, closed],
         ]
     )
 
