@@ -16,7 +16,15 @@ compare, absolute times do not). Scenes: ``sim`` (the simulator's flight) and
 ``independent`` (``scripts/independent_flight.py``: the same trajectory drawn
 without the simulator: photographs behind, members and a conductor in front).
 
+CPU: this process's (all threads, waited-for children) plus the chunk and
+plot processes' (each writes its CPU per job under ``pipeline.PROFILE_ENV``;
+they are the forkserver's children, which no rusage of this process counts).
+``--budget`` splits the first run's CPU by stage: this process's main thread
+per function (exclusive of the others listed; with ``--workers 1`` that is
+the whole run but the video reader thread), the processes as totals.
+
     .venv/bin/python scripts/bench_pipeline.py --frames 1000
+    .venv/bin/python scripts/bench_pipeline.py --frames 300 --workers 1 --budget
     .venv/bin/python scripts/bench_pipeline.py --frames 300 --scenes sim independent \
         --workers 1 2 --repeat 3 --json /tmp/bench_pipeline.json
 """
@@ -105,6 +113,7 @@ class _Budget:
     def __init__(self) -> None:
         self.cpu: dict[str, float] = {}
         self.calls: dict[str, int] = {}
+        self.each: dict[str, list[float]] = {}  # every call's exclusive CPU
         self._inner: list[float] = []
 
     def wrap(self, fn, label: str):
@@ -120,6 +129,7 @@ class _Budget:
                 inner, spent = self._inner.pop(), time.thread_time() - t0
                 self.cpu[label] = self.cpu.get(label, 0.0) + spent - inner
                 self.calls[label] = self.calls.get(label, 0) + 1
+                self.each.setdefault(label, []).append(spent - inner)
                 if self._inner:
                     self._inner[-1] += spent
 
@@ -305,13 +315,17 @@ def _print_budget(budget: _Budget, timed: _Timed) -> None:
     """The first run's CPU budget (``--budget``) as a table."""
     n = max(timed.result.n_frames, 1)
     print("\nCPU budget of the first run (main thread: exclusive time per function)")
-    print(f"{'stage':10s} {'what':52s} {'CPU [s]':>8s} {'ms/frame':>9s} {'calls':>6s}")
+    print(
+        f"{'stage':10s} {'what':52s} {'CPU [s]':>8s} {'ms/frame':>9s} {'calls':>6s} "
+        f"{'median ms/call':>14s}"
+    )
     rows = [(stage, label) for stage, _, _, label in BUDGET]
     rows += [("outputs", k) for k in budget.cpu if k.startswith("plot ")]
     for stage, label in rows:
         if label in budget.cpu:
-            c = budget.cpu[label]
-            print(f"{stage:10s} {label:52s} {c:8.2f} {1000 * c / n:9.2f} {budget.calls[label]:6d}")
+            c, calls = budget.cpu[label], budget.calls[label]
+            med = 1000 * statistics.median(budget.each[label])
+            print(f"{stage:10s} {label:52s} {c:8.2f} {1000 * c / n:9.2f} {calls:6d} {med:14.2f}")
     main_thread = sum(budget.cpu.values())
     other = timed.cpu_main - main_thread
     print(
