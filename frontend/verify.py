@@ -33,16 +33,17 @@ The result is a ``DecodeResult`` filled as the decoder fills it (keypoints,
 ellipse, ``sigma_inputs`` and ``keypoint_sigma_px`` from the same
 ``keypoint_sigmas``), so the sigma calibration holds for verified signs too.
 
-Cost: about 1 ms of CPU per verified sign on scripts/bench_frontend.py's
-crops, four fifths of it in what the decoder does for an accepted reading,
-called here at the refit. Medians over the simulator flight's 357 verified
-crops (40 frames, least of 5 runs each, committed tree of 2026-12-02):
-``_accept_code`` 298 us, ``keypoint_noise.measure_parts`` 159 us,
-``_read_slots`` 26 us twice, ``_reading_result`` 34 us, ``_fill_deficit``
-16 us; this module's own steps: ``_part_centroids`` 42 us, ``_refit`` 34 us,
-``_align`` 32 us, two disc ellipses 10 us. A verification makes about 900
-Python-level calls, 390 of them numpy's and 36 OpenCV's
-(``bench_frontend.py --profile track``). Own copies of the decoder's checks
+Cost: about 1.2 ms of CPU per verified sign on scripts/bench_frontend.py's
+crops, most of it in what the decoder does for an accepted reading, called
+here at the refit. Medians over the simulator flight's 357 verified crops
+(40 frames, least of 5 runs each, on commit 59ae25e): ``verify_sign``
+1173 us; ``_accept_code`` 318 us, ``keypoint_noise.measure_parts`` 208 us,
+``_reading_result`` 111 us, ``_read_slots`` 29 us twice, ``_fill_deficit``
+16 us; this module's own steps: ``_part_centroids`` 45 us, ``_refit`` 36 us,
+``_align`` 34 us, two disc ellipses 11 us. A verification makes about 1,570
+Python-level calls, 630 of them numpy's and 48 OpenCV's
+(``bench_frontend.py --frames 40 --profile track``, sim; 6 of them
+``np.median`` in ``keypoint_sigmas``, a tenth of the profile). Own copies of the decoder's checks
 fed from one remap of every sample were not written: they would have to
 follow each change of the decoder's acceptance by hand, and a copy that
 lags behind accepts, silently, what the decoder refuses.
