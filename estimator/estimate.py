@@ -33,6 +33,7 @@ from signpose.estimator.noise_scale import (
     inflated_pose,
     pixel_noise_scale,
     pose_noise_scale,
+    residual_noise_scale,
     scaled_frames,
     scaled_pose,
 )
@@ -253,7 +254,8 @@ class EstimateResult:
         fusion: the GNSS/IMU fusion (clock offset, GNSS outliers, counts), or
             None without telemetry.
         pixel_noise_scale: the factor (>= 1) every keypoint sigma was scaled
-            by (``estimator.noise_scale``; 1.0: none).
+            by (``estimator.noise_scale``: PnP's residuals', then, with the
+            smoother, its own residuals' on top; 1.0: none).
         pose_noise_scale: the factor (>= 1) the PnP and smoothed pose sigmas
             were scaled by after that, from PnP's scatter about the smoothed
             trajectory (``noise_scale.pose_noise_scale``; map taken as exact
@@ -307,7 +309,8 @@ def _from_frame_poses(
             valid[i] = True
             if write_sigma:
                 sigma[i] = _position_sigmas(p.cov6, p.world_T_cam)
-            worst = worst_axis_sigma(p.cov6, p.world_T_cam[:3, :3])
+            # without a sigma to bet on, no pose is ok: weak unless its residuals fail
+            worst = worst_axis_sigma(p.cov6 if write_sigma else None, p.world_T_cam[:3, :3])
             dof = max(2 * p.keypoints_used - POSE_DOF, 0)
             status.append(classify(p.keypoints_used, worst, p.chi2_map, dof, st))
         else:
@@ -572,6 +575,7 @@ class _SmoothedRun:
     timing_s: dict[str, float]
     fusion: FusionResult | None = None  # with telemetry: "fused" is in methods
     pose_scale: float = 1.0  # see EstimateResult.pose_noise_scale
+    pixel_scale: float = 1.0  # the smoother's residual noise scale, on top of PnP's
 
 
 def _rejections(
@@ -690,20 +694,16 @@ def _smoothed(
     p = _Problem(frames, meas, stamps, camera, default_pose(sign_map), s)
     t0 = time.perf_counter()
     kept, gated = gate_measurements(meas, causal_init, camera, s.gate_px)
-    rejected = _rejections(
-        meas,
-        frames,
-        np.nonzero(gated)[0],
-        RejectionTest.PNP_GATE,
-        np.zeros(int(gated.sum())),
-        s.gate_px,
-    )
+    ids = np.nonzero(gated)[0]
+    rejected = _rejections(meas, frames, ids, RejectionTest.PNP_GATE, 0 * ids, s.gate_px)
     huber = replace(s.smoother, kernel=HUBER)
     if s.solver == "batch":
         r = smooth_batch(kept, stamps, init, camera, huber, p.default)
     else:
         r = smooth_isam2(kept, stamps, causal_init, camera, huber, p.default, progress)
     causal = r
+    p, kept, r, pixel_scale = _residual_scaled(p, kept, r)
+    meas = p.meas
     active = ~gated
     r, by_innovation = _innovation_rounds(p, r, active)
     motion = None
@@ -716,7 +716,7 @@ def _smoothed(
         if s.final_kernel == HUBER:  # no final solve to carry the chosen prior
             r = smooth_batch(kept, stamps, list(r.world_T_cam), camera, motion.settings, p.default)
     r, by_kernel = _final_solve(p, r, active)
-    r, pose_scale = _pose_scaled(r, per_frame["pnp"], s)
+    r, pose_scale = _pose_scaled(r, [scaled_pose(q, pixel_scale) for q in per_frame["pnp"]], s)
     timing = {"smoothed": time.perf_counter() - t0, "sigmas": r.sigma_seconds}
     status = _smoothed_status(meas.subset(active), r, camera, s.status)
     methods = {"smoothed": _from_smoother("smoothed", stamps, r, status=status)}
@@ -739,7 +739,32 @@ def _smoothed(
         timing_s=timing,
         fusion=fused,
         pose_scale=pose_scale,
+        pixel_scale=pixel_scale,
     )
+
+
+def _scaled_measurements(meas: Measurements, scale: float) -> Measurements:
+    return replace(meas, sigma_px=meas.sigma_px * scale, sigma_uv_px=meas.axis_sigmas() * scale)
+
+
+def _residual_scaled(
+    p: _Problem, kept: Measurements, r: SmootherResult
+) -> tuple[_Problem, Measurements, SmootherResult, float]:
+    """After the first solve: every sigma scaled by the smoother's own residual noise scale.
+
+    ``noise_scale.residual_noise_scale`` on the first (Huber) solve's
+    residuals; the problem's and the kept measurements' sigmas, and the
+    solve's covariances (for the innovation test), scaled by it.
+    """
+    if not p.s.scale_pixel_noise:
+        return p, kept, r, 1.0
+    scale = residual_noise_scale(whitened_chi2(kept, r, p.camera), kept.frame, kept.n_frames)
+    if scale == 1.0:
+        return p, kept, r, scale
+    cov6 = None if r.cov6 is None else r.cov6 * scale**2
+    r = replace(r, cov6=cov6, sigma_xyz=r.sigma_xyz * scale)
+    meas = _scaled_measurements(p.meas, scale)
+    return replace(p, meas=meas), _scaled_measurements(kept, scale), r, scale
 
 
 def _pose_scaled(
@@ -885,9 +910,10 @@ def estimate_trajectories(
     run = None  # the smoother, with the sigmas the PnP residuals support
     if "smoothed" in wanted:
         run = _smoothed(scaled, sign_map, camera, s, per_frame, progress, telemetry, fusion)
-    pose_scale = 1.0 if run is None else run.pose_scale
+    pose_scale, more = (1.0, 1.0) if run is None else (run.pose_scale, run.pixel_scale)
     for name, poses in per_frame.items():
         if name in wanted:
+            poses = [scaled_pose(p, more) for p in poses]
             poses = [inflated_pose(p, pose_scale) for p in poses] if name == "pnp" else poses
             methods[name] = _from_frame_poses(name, stamps, poses, s.status)
     if run is not None:
@@ -912,6 +938,6 @@ def estimate_trajectories(
         timing_s=timing,
         motion=None if run is None else run.motion,
         fusion=None if run is None else run.fusion,
-        pixel_noise_scale=scale,
+        pixel_noise_scale=scale * more,
         pose_noise_scale=pose_scale,
     )

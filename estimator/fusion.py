@@ -1006,6 +1006,7 @@ def pose_statuses(
     """
     order = np.argsort(kept.frame, kind="stable")
     starts = np.searchsorted(kept.frame[order], np.arange(len(poses) + 1))
+    sigma_uv = kept.axis_sigmas()  # per keypoint and axis, as the factors have them
     out = []
     for i in range(len(poses)):
         ids = order[starts[i] : starts[i + 1]]
@@ -1014,7 +1015,7 @@ def pose_statuses(
             continue
         world = landmarks[kept.landmark[ids]]
         uv, _, _ = pixels_and_pose_jacobian(camera, poses[i], world)
-        chi2 = float(np.sum(((kept.px[ids] - uv) / kept.sigma_px[ids, None]) ** 2))
+        chi2 = float(np.sum(((kept.px[ids] - uv) / sigma_uv[ids]) ** 2))
         if np.all(np.isfinite(sigma_xyz[i])):  # the marginal: what the user is given
             worst = float(np.max(sigma_xyz[i]))
         else:

@@ -35,6 +35,7 @@ _POSE_DOF = 6
 # matches, and chi-square(3)'s value there.
 _POSE_QUANTILE = 0.75
 _CHI2_3_AT_QUANTILE = 4.108345
+_NORMAL_AT_QUANTILE = 0.674490
 # A difference covariance whose smallest eigenvalue is below this share of its
 # largest says the smoother is not (much) better than PnP along some axis: skipped.
 _MIN_DIFFERENCE_SHARE = 1e-3
@@ -170,3 +171,53 @@ def inflated_pose(p: FramePose, scale: float) -> FramePose:
     cov6 = None if p.cov6 is None else p.cov6 * scale**2
     pixel = None if p.cov6_pixel is None else p.cov6_pixel * scale**2
     return replace(p, cov6=cov6, cov6_pixel=pixel)
+
+
+def residual_noise_scale(
+    chi2: np.ndarray, frame: np.ndarray, n_frames: int, min_frames: int = MIN_FRAMES
+) -> float:
+    """``pixel_noise_scale`` on the smoother's residuals: the factor (>= 1) its sigmas miss.
+
+    The smoother estimates the signs with the poses, so its residuals show
+    the pixel noise where PnP's show the survey's error too: with a
+    surveyed map's 1 cm per sign (~0.4 px at 27 m) against keypoint sigmas
+    of 0.03-0.1 px, ``chi2_map`` whitens PnP's residuals mostly by the
+    survey and cannot tell whether the pixel sigmas are right (the demo
+    flight: 1.45 from the pixel-only chi-square, 1.0 from ``chi2_map``;
+    its smoothed poses then failed their residual test on 4.8 % of frames).
+    Per frame the whitened squared residuals of its k keypoints with
+    2 k - 6 degrees of freedom (the pose's share; the motion prior and the
+    signs take a little more, so the scale errs large); by Wilson-Hilferty
+    each frame's (chi2 / dof)^(1/3) is normal, and the scale is the one that
+    puts the frames' 75th percentile of its standard score at the normal's
+    (as ``pose_noise_scale``: robust to a quarter of wild frames, and it
+    sees residuals heavier-tailed than Gaussian, which the median would
+    pass as scale 1); never below 1.
+
+    Args:
+        chi2: (M,) each measurement's squared residual whitened per axis.
+        frame: (M,) its frame (0..n_frames-1).
+        n_frames: number of frames.
+        min_frames: below this many frames with residual freedom, 1.0.
+    """
+    per = np.bincount(frame, weights=chi2, minlength=n_frames)
+    dof = 2 * np.bincount(frame, minlength=n_frames) - _POSE_DOF
+    ok = dof >= 2
+    if ok.sum() < min_frames:
+        return 1.0
+    d = dof[ok].astype(float)
+    cube = np.cbrt(per[ok] / d)  # Wilson-Hilferty: ~ N(1 - 2 / (9 d), 2 / (9 d)) at scale 1
+    mean, sd = 1.0 - 2.0 / (9.0 * d), np.sqrt(2.0 / (9.0 * d))
+
+    def score(scale: float) -> float:  # the frames' 75th percentile standard score
+        return float(np.quantile((cube / scale ** (2.0 / 3.0) - mean) / sd, _POSE_QUANTILE))
+
+    if score(1.0) <= _NORMAL_AT_QUANTILE:
+        return 1.0
+    lo, hi = 1.0, 2.0
+    while score(hi) > _NORMAL_AT_QUANTILE:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(40):  # bisection: the score falls as the scale grows
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if score(mid) > _NORMAL_AT_QUANTILE else (lo, mid)
+    return 0.5 * (lo + hi)

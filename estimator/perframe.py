@@ -133,8 +133,18 @@ class _Correspondences:
     sigma_px: np.ndarray  # (N, 2) pixel sigma of each point per image axis (u, v)
     sigma_m: np.ndarray  # (N,) survey sigma of each point [m]
 
-    def fit(self, camera: CameraModel, world_T_cam: np.ndarray, inliers: np.ndarray) -> dict:
-        """FramePose fields describing how well the inliers fix and fit the pose."""
+    def fit(
+        self,
+        camera: CameraModel,
+        world_T_cam: np.ndarray,
+        inliers: np.ndarray,
+        optimal: bool = True,
+    ) -> dict:
+        """FramePose fields describing how well the inliers fix and fit the pose.
+
+        ``optimal``: the pose is the inliers' pixel-weighted fit (PnP), see
+        ``projection.pose_fit``.
+        """
         pin = _pinhole(camera)
         uv, _, _ = pixels_and_pose_jacobian(pin, world_T_cam, self.world[inliers])
         sign_id = np.unique(np.asarray(self.codes), return_inverse=True)[1].reshape(-1)
@@ -146,6 +156,7 @@ class _Correspondences:
             self.sigma_px[inliers],
             self.sigma_m[inliers],
             sign_id[inliers],
+            optimal,
         )
         return {
             "cov6": f.cov6,
@@ -418,7 +429,7 @@ def solve_frame_baseline(
         signs_used=len(used),
         inlier_codes=used,
         rms_px=rms,
-        **c.fit(camera, T, inliers),
+        **c.fit(camera, T, inliers, optimal=False),
     )
 
 

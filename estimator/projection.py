@@ -204,10 +204,12 @@ class PoseFit:
         cov6_survey: (6, 6) the survey error's share (zero for an exact map), or None.
         chi2_pixel: the residuals whitened by the pixel sigmas, squared and
             summed (chi-square with 2K - 6 dof when the map is exact).
-        chi2_map: the residuals' chi-square with the survey noise too: the
-            generalised least-squares refit of the residuals with the pixel
-            plus survey covariance (chi-square with 2K - 6 dof when both
-            the pixel sigmas and the survey sigmas are right).
+        chi2_map: the residuals' chi-square with the survey noise too: for the
+            pixel-weighted pose, the generalised least-squares refit of its
+            residuals with the pixel plus survey covariance (chi-square with
+            2K - 6 dof when both the pixel sigmas and the survey sigmas are
+            right); for another pose (``optimal=False``) the residuals at it,
+            unrefitted, so that a wrong pose fails the test.
     """
 
     cov6_pixel: np.ndarray | None
@@ -253,6 +255,7 @@ def pose_fit(
     sigma_px: np.ndarray,
     sigma_m: np.ndarray,
     sign_id: np.ndarray | None = None,
+    optimal: bool = True,
 ) -> PoseFit:
     """Covariances and chi-squares of a pose fitted to its keypoints with pixel weights.
 
@@ -264,6 +267,10 @@ def pose_fit(
         sigma_px: (K,) or (K, 2) pixel sigmas (per image axis).
         sigma_m: (K,) survey sigmas [m] (zeros: an exact map).
         sign_id: (K,) sign of each point (its survey error a rigid shift), or None.
+        optimal: the pose minimises the pixel-weighted residuals (PnP); False
+            for a pose from elsewhere (the baseline): its chi-squares are then
+            of the residuals at it, and its covariances those of the
+            pixel-weighted fit it is not.
     """
     k = len(world_p)
     sp = axis_sigmas(sigma_px, k).reshape(-1)
@@ -276,22 +283,24 @@ def pose_fit(
     Jf = J.reshape(2 * k, 6)
     info = Jf.T @ (w[:, None] * Jf)
     G = survey_columns(J_point, sigma_m, sign_id)
+    chi2_map = _chi2_map(Jf if optimal else None, r, w, G, chi2_pixel)
     if np.linalg.cond(info) > MAX_CONDITION:
-        return PoseFit(None, None, chi2_pixel, _chi2_map(Jf, r, w, G, chi2_pixel))
+        return PoseFit(None, None, chi2_pixel, chi2_map)
     cov_px = np.linalg.inv(info)
     AG = cov_px @ (Jf.T @ (w[:, None] * G))  # (6, 3S): pose error per unit survey error
     cov_sv = AG @ AG.T
-    return PoseFit(
-        cov_px, 0.5 * (cov_sv + cov_sv.T), chi2_pixel, _chi2_map(Jf, r, w, G, chi2_pixel)
-    )
+    return PoseFit(cov_px, 0.5 * (cov_sv + cov_sv.T), chi2_pixel, chi2_map)
 
 
-def _chi2_map(Jf: np.ndarray, r: np.ndarray, w: np.ndarray, G: np.ndarray, chi2: float) -> float:
+def _chi2_map(
+    Jf: np.ndarray | None, r: np.ndarray, w: np.ndarray, G: np.ndarray, chi2: float
+) -> float:
     """min over xi of (r - J xi)^T C^-1 (r - J xi), C = diag(1 / w) + G G^T (Woodbury).
 
     The residuals of a pixel-weighted fit refitted by generalised least
     squares: the same as the generalised least-squares residuals of the
     data, whatever weights the first fit used (both remove J's column space).
+    ``Jf`` None: no refit, r^T C^-1 r.
     """
     if G.size == 0 or not np.any(G):
         return chi2
@@ -303,8 +312,10 @@ def _chi2_map(Jf: np.ndarray, r: np.ndarray, w: np.ndarray, G: np.ndarray, chi2:
         return wy - wG @ np.linalg.solve(M, G.T @ wy)
 
     try:
-        ci_r, ci_J = c_inv(r), c_inv(Jf)
+        ci_r = c_inv(r)
+        if Jf is None:
+            return float(r @ ci_r)
         g = Jf.T @ ci_r
-        return float(r @ ci_r - g @ np.linalg.solve(Jf.T @ ci_J, g))
+        return float(r @ ci_r - g @ np.linalg.solve(Jf.T @ c_inv(Jf), g))
     except np.linalg.LinAlgError:
         return float("nan")

@@ -11,6 +11,7 @@ from signpose.estimator.noise_scale import (
     inflated_pose,
     pixel_noise_scale,
     pose_noise_scale,
+    residual_noise_scale,
     scaled_frames,
     scaled_pose,
 )
@@ -199,3 +200,27 @@ def test_an_honest_flight_on_an_exact_map_keeps_its_pose_sigmas():
     s = replace(s, smoother=replace(s.smoother, landmarks="fixed"))
     r = estimate_trajectories(frames, sign_map, camera, s, False)
     assert 1.0 <= r.pose_noise_scale < 1.2
+
+
+@pytest.mark.parametrize("scale", [1.0, 1.3, 2.0])
+def test_residual_scale_of_chi_square_frames(scale):
+    # 300 frames of 10-20 keypoints, each keypoint's whitened chi2 (2 dof) scaled
+    rng = np.random.default_rng(7)
+    k = rng.integers(10, 21, 300)
+    frame = np.repeat(np.arange(300), k)
+    # a frame's residuals keep 2k - 6 dof: draw its total and share it out
+    total = scale**2 * rng.chisquare(2 * k - 6)
+    chi2 = np.repeat(total / k, k)
+    got = residual_noise_scale(chi2, frame, 300)
+    assert got == pytest.approx(scale, rel=0.05) if scale > 1 else 1.0 <= got < 1.05
+    assert residual_noise_scale(chi2[:50], frame[:50], 300) == 1.0  # too few frames
+
+
+def test_residual_scale_sees_a_heavy_tail_the_median_passes():
+    rng = np.random.default_rng(8)
+    k = np.full(400, 15)
+    frame = np.repeat(np.arange(400), k)
+    # 40 % of the frames scatter twice their sigmas: the median frame is fine
+    s = np.where(rng.random(400) < 0.4, 2.0, 1.0)
+    total = s**2 * rng.chisquare(2 * k - 6)
+    assert residual_noise_scale(np.repeat(total / k, k), frame, 400) > 1.3

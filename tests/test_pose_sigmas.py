@@ -11,6 +11,7 @@ from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
 from signpose.estimator.perframe import solve_frame_pnp
 from signpose.estimator.projection import pixels_and_pose_jacobian, pose_fit
 from signpose.estimator.smoother import collect_measurements
+from signpose.estimator.status import PoseStatus
 
 
 def _scene(rng, n_signs=6, per_sign=4):
@@ -134,6 +135,9 @@ def test_smoother_takes_per_axis_sigmas_and_the_baseline_writes_none():
     assert np.allclose(meas.subset(centre).axis_sigmas(), [0.3, 0.6])
     r = estimate_trajectories(frames, sign_map, camera, EstimatorSettings(), progress=False)
     assert np.all(np.isnan(r.methods["baseline"].sigma_xyz))
+    # without a sigma to bet on, no baseline pose is ok
+    assert r.methods["baseline"].valid.sum() > 10
+    assert PoseStatus.OK not in r.methods["baseline"].status
     assert np.all(np.isfinite(r.methods["pnp"].sigma_xyz[r.methods["pnp"].valid]))
     s = r.methods["smoothed"].sigma_xyz
     assert np.all(np.isfinite(s)) and np.all(s > 0)
