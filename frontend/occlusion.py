@@ -745,3 +745,141 @@ def _off_black_extent(
         return None
     shift = 0.5 * (_EXTENT_OFFSETS[lo] + _EXTENT_OFFSETS[hi]) * n
     return Band(band.p0 + shift, band.p1 + shift, 0.5 * width + 0.5 * _EXTENT_STEP)
+
+
+# The straight-bar search (``straight_bars``): directions tried through each
+# target, from its tangential direction [rad] (a line farther off it runs
+# over the location square, which then reads covered anyway), offsets of the
+# centre line from the target and half widths tried [diameters]; distances
+# beyond the rim sampled along the bar, the share of the half width sampled
+# inside it, and the gap to its sides.
+_SEARCH_ANGLES = np.radians(np.arange(-48.0, 49.0, 4.0))
+_SEARCH_OFFSETS = (-0.03, 0.0, 0.03)
+_SEARCH_HALVES = (0.07, 0.085, 0.1, 0.12, 0.15, 0.2)
+_SEARCH_BEYOND = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3)
+_SEARCH_BODY = (0.5, 0.7)
+_N_IN = 1 + 2 * len(_SEARCH_BODY)
+_SEARCH_GAP = 0.05
+# Chord samples inside this radius [diameters] must be dark.
+_SEARCH_INNER = 0.47
+# White-part samples this far inside a bar's edge [diameters] lie under it.
+_SEARCH_UNDER = 0.02
+# Least edge step (white fraction) at the two distances nearest the rim, and
+# the largest level difference between the bar's two ends.
+_SEARCH_NEAR_STEP = 0.25
+_SEARCH_LEVEL = 0.1
+
+
+def _search_geometry(targets: np.ndarray) -> tuple:
+    """Every (target, angle, offset, half width) bar hypothesis and its sample points.
+
+    Returns the centre line's rim crossings p0, p1 ((K, 2) each), its unit
+    normal (K, 2), the half widths (K,), beyond points (K, 2 ends, B, 5, 2:
+    centre, body +-, sides +-), whether the side points lie off the disc
+    (K, 2, B, 2), chord points (K, _N_CHORD, 3, 2: centre, body +-) and which
+    chord points lie inside ``_SEARCH_INNER`` (K, _N_CHORD).
+    """
+    targets = np.asarray(targets, float)
+    tangential = np.arctan2(targets[:, 1], targets[:, 0]) + 0.5 * math.pi
+    alpha, off, hw = np.meshgrid(_SEARCH_ANGLES, _SEARCH_OFFSETS, _SEARCH_HALVES, indexing="ij")
+    alpha, off, hw = alpha.ravel(), off.ravel(), hw.ravel()
+    th = (tangential[:, None] + alpha[None, :]).ravel()
+    d = np.stack([np.cos(th), np.sin(th)], axis=1)
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    off, hw = np.tile(off, len(targets)), np.tile(hw, len(targets))
+    c = np.repeat(targets, len(alpha), axis=0) + off[:, None] * n
+    # Rim crossings: |c + t d| = 0.5.
+    b = np.einsum("ij,ij->i", c, d)
+    root = np.sqrt(np.maximum(b * b - (np.einsum("ij,ij->i", c, c) - 0.25), 0.0))
+    p0, p1 = c - (b + root)[:, None] * d, c + (root - b)[:, None] * d
+    s = np.asarray(_SEARCH_BEYOND)
+    side = hw + _SEARCH_GAP
+    offs = [np.zeros_like(hw)]
+    for f in _SEARCH_BODY:
+        offs += [f * hw, -f * hw]
+    offs = np.stack([*offs, side, -side], axis=1)  # (K, _N_IN + 2)
+    ends = []
+    for p, sgn in ((p0, -1.0), (p1, 1.0)):
+        q = p[:, None, :] + sgn * s[None, :, None] * d[:, None, :]  # (K, B, 2)
+        ends.append(q[:, :, None, :] + offs[:, None, :, None] * n[:, None, None, :])
+    beyond = np.stack(ends, axis=1)
+    off_disc = np.hypot(beyond[..., _N_IN:, 0], beyond[..., _N_IN:, 1]) > _OFF_DISC
+    line = p0[:, None, :] + _CHORD_T[None, :, None] * (p1 - p0)[:, None, :]  # (K, N, 2)
+    chord = line[:, :, None, :] + offs[:, None, :3, None] * n[:, None, None, :]
+    keep = np.hypot(line[..., 0], line[..., 1]) < _SEARCH_INNER
+    return p0, p1, n, hw, beyond, off_disc, chord, keep
+
+
+def straight_bars(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    black: float,
+    white: float,
+    targets: np.ndarray,
+    white_quads: np.ndarray,
+) -> list[Band]:
+    """Straight bars over ``targets`` ((T, 2) black-read slot centres
+    [diameters]), found by searching their direction and width.
+
+    A member as black as the print over a white slot shows nothing on the
+    face; beyond the rim it runs on as a straight dark band. ``dark_bands``
+    and ``bars_through`` place a bar by the centres of its dark rim runs,
+    which an oblique crossing or dark clutter beside it moves; here lines
+    through each target are tried (every 4 degrees within 48 of its
+    tangential direction, three offsets, four widths). A line is a bar over
+    the target when the chord is dark across the face, no white part read
+    white (``white_quads``, (P, 4, 2)) shows white under it, and beyond one
+    rim crossing its body is dark between lighter sides at the chord's level
+    while beyond the other it is at least dark (the background there may be
+    as dark as the bar). Returned bands are not ``in_front``.
+    """
+    if len(targets) == 0:
+        return []
+    contrast = max(white - black, 1e-6)
+    p0, p1, n, hw, beyond, off_disc, chord, keep = _search_geometry(targets)
+    k, nb = len(hw), beyond.shape[2]
+    under = np.zeros((0, 2))
+    if len(white_quads):
+        under = np.concatenate([_GRID_WEIGHTS @ q for q in white_quads])
+    pts = np.concatenate([beyond.reshape(-1, 2), chord.reshape(-1, 2), under])
+    uv = _project(image_H_sign, pts)
+    h, w = gray.shape
+    seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
+    frac = (_sample(gray, uv) - black) / contrast
+    nbey, nch = k * 2 * nb * (_N_IN + 2), k * _N_CHORD * 3
+    fb = frac[:nbey].reshape(k, 2, nb, _N_IN + 2)
+    sb = seen[:nbey].reshape(k, 2, nb, _N_IN + 2).all(axis=3)
+    fc = frac[nbey : nbey + nch].reshape(k, _N_CHORD, 3)
+    ok = ~((fc.max(axis=2) > _DARK_FRAC) & keep).any(axis=1)
+    if len(under):
+        # An opaque bar in front hides the white parts under it.
+        lit = under[frac[nbey + nch :] > _WHITE_FRAC]
+        if len(lit):
+            dist = np.abs(np.einsum("kj,pj->kp", n, lit) - np.einsum("kj,kj->k", n, p0)[:, None])
+            ok &= ~(dist < (hw - _SEARCH_UNDER)[:, None]).any(axis=1)
+    inner = fb[..., :_N_IN].max(axis=3)
+    lower = np.where(off_disc, fb[..., _N_IN:], np.inf).min(axis=3)
+    evidence = sb & off_disc.any(axis=3)  # (K, 2, B)
+    dark = inner <= _DARK_FRAC
+    edged = dark & (lower - inner >= _BAR_EDGE_STEP)
+    # One end shows the bar's edges at every distance seen (the first three
+    # seen); the other shows it dark at least, wherever seen.
+    ok_edged = (
+        (edged | ~evidence).all(axis=2)
+        & evidence[:, :, :3].all(axis=2)
+        & ((lower - inner)[:, :, :2].min(axis=2) >= _SEARCH_NEAR_STEP)
+    )
+    ok_dark = (dark | ~sb).all(axis=2) & sb.any(axis=2)
+    ok &= (ok_edged[:, 0] & ok_dark[:, 1]) | (ok_edged[:, 1] & ok_dark[:, 0])
+    out = []
+    for i in np.flatnonzero(ok).tolist():
+        e = 0 if ok_edged[i, 0] else 1
+        level_in = float(np.median(fc[i, keep[i], 0]))
+        level_out = float(np.median(fb[i, e, :, 0][evidence[i, e]]))
+        # A bar in front shows its own level beyond both crossings (over
+        # whatever background lies there).
+        level_far = float(np.median(fb[i, 1 - e, :, 0][sb[i, 1 - e]]))
+        if abs(level_out - level_in) >= _BEHIND_GAP or abs(level_far - level_out) >= _SEARCH_LEVEL:
+            continue
+        out.append(Band(p0[i], p1[i], float(hw[i]), in_front=False))
+    return out

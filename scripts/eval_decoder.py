@@ -19,7 +19,7 @@ some blur, dirt and power lines; seeded) and decodes each with
 * the median decoding time per crop.
 
     .venv/bin/python scripts/eval_decoder.py [--quick] [--json PATH] [--seed N]
-        [--independent N] [--independent-only] [--dump-wrong DIR]
+        [--independent N] [--independent-only] [--dump-wrong DIR] [--search-bars]
 """
 
 from __future__ import annotations
@@ -200,12 +200,18 @@ def _dump_wrong(dump_dir: Path, cond: str, i: int, crop, res) -> dict:
 
 
 def run_independent(
-    n_per_condition: int, seed: int, quiet: bool, dump_dir: Path | None = None
+    n_per_condition: int,
+    seed: int,
+    quiet: bool,
+    dump_dir: Path | None = None,
+    settings: DecoderSettings | None = None,
 ) -> dict:
     """Decode ``n_per_condition`` independent crops per condition; print and return the table.
 
     ``dump_dir``: write every wrong reading there (PNG per crop, wrong.jsonl).
+    ``settings``: the decoder's (default ``DecoderSettings()``).
     """
+    settings = DecoderSettings() if settings is None else settings
     codes = PAPER_CODES
     rng = np.random.default_rng(seed)
     table: dict = {}
@@ -215,7 +221,9 @@ def run_independent(
         ensure_dir(dump_dir)
     print(
         f"\nIndependent scenes (scripts/independent_scene.py, photographs, 3D bars, JPEG; "
-        f"{n_per_condition} crops per condition, map = the paper's 10 codes, seed {seed})"
+        f"{n_per_condition} crops per condition, map = the paper's 10 codes, seed {seed}"
+        + (", search_bars" if settings.search_bars else "")
+        + ")"
     )
     print(f"{'Condition':<22}{'group':<20}{'n':>6}{'correct':>9}{'refused':>9}{'WRONG':>7}")
     for cond in INDEPENDENT_CONDITIONS:
@@ -223,7 +231,7 @@ def run_independent(
         for i in tqdm(range(n_per_condition), desc=cond, disable=quiet, leave=False):
             s = scene_settings(rng, cond)
             crop = render_scene_crop(codes[i % len(codes)], s, rng)
-            res = decode_roi(crop.image, codes)
+            res = decode_roi(crop.image, codes, settings)
             group = _group(crop)
             outcome = (
                 "correct" if res.code == crop.code else ("refused" if res.code is None else "wrong")
@@ -337,6 +345,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--independent-only", action="store_true", help="only the independent scenes")
     ap.add_argument(
+        "--search-bars",
+        action="store_true",
+        help="decode with DecoderSettings(search_bars=True) (straight print-black bars)",
+    )
+    ap.add_argument(
         "--dump-wrong",
         type=Path,
         default=None,
@@ -345,8 +358,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     n_indep = args.independent if args.independent is not None else (100 if args.quick else 400)
+    settings = DecoderSettings(search_bars=args.search_bars)
     if args.independent_only:
-        indep = run_independent(n_indep, args.seed, args.quiet, args.dump_wrong)
+        indep = run_independent(n_indep, args.seed, args.quiet, args.dump_wrong, settings)
         if args.json is not None:
             with atomic_write(args.json) as f:
                 json.dump({"independent": indep}, f, indent=2)
@@ -355,7 +369,6 @@ def main(argv: list[str] | None = None) -> int:
     n_main = args.n or (320 if args.quick else 2048)
     n_cond = args.per_condition or (48 if args.quick else 256)
     rng = np.random.default_rng(args.seed)
-    settings = DecoderSettings()
 
     # Warm-up (imports, first-call allocations) outside the timing.
     warm = render_crop("0101", np.random.default_rng(0), sign_px=40)
@@ -506,7 +519,9 @@ def main(argv: list[str] | None = None) -> int:
         )
 
     indep = (
-        run_independent(n_indep, args.seed, args.quiet, args.dump_wrong) if n_indep > 0 else None
+        run_independent(n_indep, args.seed, args.quiet, args.dump_wrong, settings)
+        if n_indep > 0
+        else None
     )
 
     if args.json is not None:

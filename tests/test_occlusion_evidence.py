@@ -235,3 +235,38 @@ def test_shows_white_tells_a_partly_hidden_slot_from_a_gray_one():
             "1000", 1, None if width is None else 0.2, width=width or 0.1
         )
         assert occlusion.shows_white(image, h, quads, black, white).tolist() == [seen]
+
+
+def test_a_print_black_bar_seen_beyond_one_rim_crossing_is_found_by_the_line_search(
+    scene, monkeypatch
+):
+    """1010 with slot 3 under a member as black as the print; beyond the rim it
+    shows its edges at one end only (the other lies on the dark photograph),
+    and the run centres place no band over the slot: read 1000. With
+    ``search_bars`` the line search finds the bar through slot 3 and the
+    reading is refused (1x10 fits 1010 and 1110); its search switched off,
+    1000 again."""
+    crop = _scene_crop(
+        scene,
+        "1010",
+        30,
+        sign_px=24.556388111628134,
+        rotation_deg=239.90557679409466,
+        tilt_deg=31.51260071562988,
+        tilt_axis_deg=90.08205077528116,
+        focal_px=1000.0,
+        photo="camera",
+        black_level=40.96167659829629,
+        white_level=234.87053649384424,
+        psf_sigma_px=0.4748766226748564,
+        noise_sigma=2.6675097080737453,
+        jpeg_quality=82,
+        bar_over_slot=3,
+    )
+    assert crop.covered_slots == (3,)
+    assert decode_roi(crop.image, PAPER_CODES).code == "1000"
+    search = decoder.DecoderSettings(search_bars=True)
+    res = decode_roi(crop.image, PAPER_CODES, search)
+    assert res.code is None and res.reason == DecodeReason.OCCLUDED
+    monkeypatch.setattr(occlusion, "straight_bars", lambda *a, **k: [])
+    assert decode_roi(crop.image, PAPER_CODES, search).code == "1000"
