@@ -771,6 +771,13 @@ _SEARCH_LEVEL = 0.1
 
 
 def _search_geometry(targets: np.ndarray) -> tuple:
+    """``_search_geometry_of`` for (T, 2) targets (cached: the decoder's are
+    slot centres, at most 15 sets)."""
+    return _search_geometry_of(tuple(map(tuple, np.asarray(targets, float).tolist())))
+
+
+@functools.cache
+def _search_geometry_of(targets: tuple[tuple[float, float], ...]) -> tuple:
     """Every (target, angle, offset, half width) bar hypothesis and its sample points.
 
     Returns the centre line's rim crossings p0, p1 ((K, 2) each), its unit
@@ -810,6 +817,31 @@ def _search_geometry(targets: np.ndarray) -> tuple:
     return p0, p1, n, hw, beyond, off_disc, chord, keep
 
 
+def _dark_lines(
+    gray: np.ndarray, image_H_sign: np.ndarray, geometry: tuple, black: float, contrast: float
+) -> np.ndarray:
+    """Indices of the ``_search_geometry`` hypotheses whose centre line is dark
+    across the face and at the first three distances beyond one rim crossing.
+
+    The centre line does not depend on the width (the fastest-varying of the
+    hypotheses' parameters), and ``straight_bars`` asks this of every bar it
+    keeps: lines that fail are out for every width before their other points
+    are sampled (most lines, on a lit background).
+    """
+    h, w = gray.shape
+    first = np.arange(0, len(geometry[3]), len(_SEARCH_HALVES))
+    centre = np.concatenate(
+        [geometry[6][first, :, 0].reshape(-1, 2), geometry[4][first, :, :3, 0].reshape(-1, 2)]
+    )
+    uv = _project(image_H_sign, centre)
+    lit = (_sample(gray, uv) - black) / contrast > _DARK_FRAC
+    lit |= (uv[:, 0] < 0) | (uv[:, 1] < 0) | (uv[:, 0] > w - 1) | (uv[:, 1] > h - 1)
+    nc = len(first) * _N_CHORD
+    line_ok = ~(lit[:nc].reshape(-1, _N_CHORD) & geometry[7][first]).any(axis=1)
+    line_ok &= ~lit[nc:].reshape(len(first), 2, 3).any(axis=2).all(axis=1)
+    return np.flatnonzero(np.repeat(line_ok, len(_SEARCH_HALVES)))
+
+
 def straight_bars(
     gray: np.ndarray,
     image_H_sign: np.ndarray,
@@ -836,14 +868,18 @@ def straight_bars(
     if len(targets) == 0:
         return []
     contrast = max(white - black, 1e-6)
-    p0, p1, n, hw, beyond, off_disc, chord, keep = _search_geometry(targets)
+    geometry = _search_geometry(targets)
+    sel = _dark_lines(gray, image_H_sign, geometry, black, contrast)
+    if len(sel) == 0:
+        return []
+    p0, p1, n, hw, beyond, off_disc, chord, keep = (a[sel] for a in geometry)
     k, nb = len(hw), beyond.shape[2]
+    h, w = gray.shape
     under = np.zeros((0, 2))
     if len(white_quads):
         under = np.concatenate([_GRID_WEIGHTS @ q for q in white_quads])
     pts = np.concatenate([beyond.reshape(-1, 2), chord.reshape(-1, 2), under])
     uv = _project(image_H_sign, pts)
-    h, w = gray.shape
     seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     frac = (_sample(gray, uv) - black) / contrast
     nbey, nch = k * 2 * nb * (_N_IN + 2), k * _N_CHORD * 3
