@@ -16,6 +16,10 @@ estimates it (``signpose estimate --method all``) against three maps:
   settings on a map that happens to be exact): the sigmas carry the survey's
   1 cm per sign that the errors do not show, so they are cautious by design.
 
+The baseline writes no sigmas (``estimate.BASELINE_SIGMAS``): its rows say
+so. With ``--map-fixed`` PnP's sigmas are its pixel noise alone; with a survey
+prior they carry the survey share too (``projection.pose_fit``).
+
 Prints, per scene, map and method, over all posed frames of all seeds:
 rms(error / sigma) per world axis, the share of errors within 2 sigma, the
 share beyond 3 sigma, and how many poses labelled ``ok`` are beyond 3 sigma
