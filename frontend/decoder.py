@@ -338,9 +338,10 @@ class DecoderSettings:
             slot for a bar as black as the print beyond one rim crossing
             (``occlusion.straight_bars``), erasing the slot. Off: on the
             independent scenes (1,000 per condition, seeds 2017 / 99) it
-            takes the wrong codes 7 -> 4 / 9 -> 6 of 10,000 but refuses one
-            unoccluded sign more in four conditions of each seed (dark
-            clutter or a print-black bar behind the disc looks the same),
+            takes the wrong codes 7 -> 4 / 9 -> 7 of 10,000 but refuses one
+            unoccluded sign more in jpeg 70 and mixed (2017) and in photo,
+            gain and faded (99): dark clutter or a print-black bar behind
+            the disc looks the same,
             and decoding takes about twice the CPU (median 2.3 -> 4.9 ms per
             photo-background crop).
     """
