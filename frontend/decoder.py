@@ -47,8 +47,12 @@ Then, beyond the paper:
   only when exactly one code of ``codes`` fits the slots that are not
   erased; the result carries
   ``erased_slots`` and has no keypoints of covered parts. Otherwise the
-  reading is refused (``occluded``). White on the face that the read code
-  does not explain is refused too (``inconsistent``).
+  reading is refused (``occluded``), and so is a code whose every white slot
+  is erased unless one of them shows white in part (``occlusion.shows_white``).
+  ``DecoderSettings.search_bars`` adds a line search for print-black bars
+  (``occlusion.straight_bars``; off: it refuses some unoccluded signs).
+  White on the face that the read code does not explain is refused too
+  (``inconsistent``).
 * the paper's first robustness rule: a code that is not in ``codes`` (the
   map's codes) is dropped (``code_not_in_map``).
 * keypoint noise: ``keypoint_sigma_px`` per keypoint and axis from
