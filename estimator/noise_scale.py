@@ -16,7 +16,20 @@ It only ever scales sigmas up (a scale below 1 is taken as 1): a sigma that is
 too cautious costs efficiency, one that is too tight sends a user a pose to
 bet on that does not hold. On the demo flight (210 frames) the decoder's
 sigmas were 1.45x too tight by this measure (PnP ``suspect`` 79 % of frames,
-smoothed 41 % at 0.021 / 0.007 m RMSE); with the scale, 19 % and 0 %.
+smoothed 41 % at 0.021 / 0.007 m RMSE); with the scale, 19 % and 0 %. (That
+measure took the map's 1 cm survey errors for pixel noise: ``chi2_map``
+now whitens by both, see ``pixel_noise_scale``.)
+
+Three scales, in the order the estimator applies them:
+
+* ``pixel_noise_scale``: PnP's residuals (``FramePose.chi2_map``), before
+  the per-frame statuses and the smoother;
+* ``residual_noise_scale``: the smoother's residuals after its first solve
+  (the signs estimated with the poses: it sees the pixel noise where a
+  surveyed map's error swamps PnP's), on top of the first;
+* ``pose_noise_scale``: with the map taken as exact, PnP's scatter about the
+  smoothed poses (keypoint errors that mimic a pose change leave no
+  residual); it scales the pose covariances, not the pixels.
 """
 
 from __future__ import annotations
