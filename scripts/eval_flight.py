@@ -32,12 +32,14 @@ box in raw pixels through the lens, the share of its disc hidden):
   the survey's share;
 * with ``--drop-lens-model``: the same observations estimated with camera.yaml's
   distortion dropped (a wrong calibration): does signpose notice?
+* with ``--why-missed``: each unhidden sign the run missed decoded alone on its
+  true box: the detector / tracker lost it, or the decoder refuses it (why);
 * with ``--oracle``: the same observations with every keypoint moved to its
   true pixel, estimated against the same map: the estimator's share of an error.
 
     nice -n 5 .venv/bin/python scripts/eval_flight.py [--quick] [--work DIR] [--json PATH]
         [--flights NAME ...] [--without lens jpeg vibration pan members] [--surveys K]
-        [--drop-lens-model] [--oracle] [--rerun]
+        [--drop-lens-model] [--oracle] [--why-missed] [--rerun]
 
 The default set (4 flights of 240 frames at 1280x720 and one of 150 at
 1920x1080) took 12 min wall, 4.3 min CPU, on the shared 2-core machine at
@@ -59,10 +61,12 @@ import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 from eval_pose_sigma import surveyed_map
 from independent_flight import FlightOptions
 from independent_flight import main as draw_flight
+from signpose.frontend.decoder import decode_region
 from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map, write_map
 
 from signpose.core.fileio import atomic_write, ensure_dir
@@ -629,6 +633,38 @@ def without_lens(flight: Path, d: Path, rerun: bool) -> dict | None:
     }
 
 
+def missed_reasons(flight: Path, truth: list[dict], check: CodeCheck, codes) -> dict[str, int]:
+    """Each unhidden sign the run missed, decoded alone on its true box: "decoded on its
+    true box" (the detector or the tracker lost it) or the decoder's reason to refuse it."""
+    want: dict[int, list[str]] = {}
+    for frame, code, _, hidden in check.missed:
+        if hidden == 0.0:
+            want.setdefault(frame, []).append(code)
+    reasons: dict[str, int] = {}
+    cap = cv2.VideoCapture(str(flight / "video.mp4"))
+    try:
+        for i, t in enumerate(truth):
+            ok, image = cap.read()
+            if not ok:
+                break
+            if i not in want:
+                continue
+            gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+            boxes = {s["code"]: s["box_px"] for s in t["signs"]}
+            for code in want[i]:
+                x0, y0, x1, y1 = boxes[code]
+                r = decode_region(gray, (x0, y0, x1 - x0, y1 - y0), codes)
+                key = (
+                    "decoded on its true box"
+                    if r.code == code
+                    else (f"refused: {r.reason}" if r.code is None else f"read {r.code}")
+                )
+                reasons[key] = reasons.get(key, 0) + 1
+    finally:
+        cap.release()
+    return reasons
+
+
 # --------------------------------------------------------------------------- one flight
 
 
@@ -639,6 +675,7 @@ def evaluate(
     draws: int = 0,
     lensless: bool = False,
     use_oracle: bool = False,
+    why_missed: bool = False,
 ) -> dict:
     """Draw, run and grade one flight (and estimate it against ``draws`` more surveys,
     with ``lensless`` without its lens model, with ``use_oracle`` from true keypoints)."""
@@ -671,6 +708,9 @@ def evaluate(
         "keypoints": keypoint_summary(check),
         "methods": pose_metrics(out / "trajectory.csv", gt, spec.frames),
     }
+    if why_missed:
+        true_map = load_map(d / "map_true.yaml")
+        result["missed_unhidden_why"] = missed_reasons(flight, truth, check, true_map.codes)
     if draws:
         result["surveys"] = survey_summary(survey_draws(spec, work, draws, rerun))
     if lensless:
@@ -735,6 +775,10 @@ def print_flight(r: dict) -> None:
             f"{_fmt(v['radial_bias_outer_px'], '+.3f')} px"
         )
     _print_methods(r["methods"])
+    if "missed_unhidden_why" in r:
+        print(
+            f"  unhidden signs missed, decoded alone on their true box: {r['missed_unhidden_why']}"
+        )
     orc = r.get("oracle")
     if orc and "methods" in orc:
         print(
@@ -774,7 +818,11 @@ def pooled(results: list[dict]) -> dict:
         "visible_unhidden": sum(r["codes"]["visible_unhidden"] for r in ran),
         "noise_scales": [r["pixel_noise_scale"] for r in ran],
         "recall_by_hidden": {},
+        "missed_unhidden_why": {},
     }
+    for r in ran:
+        for k, v in r.get("missed_unhidden_why", {}).items():
+            out["missed_unhidden_why"][k] = out["missed_unhidden_why"].get(k, 0) + v
     for name, _, _ in HIDDEN_BINS:
         n = sum(r["codes"]["recall_by_hidden"][name][0] for r in ran)
         found = sum(r["codes"]["recall_by_hidden"][name][1] for r in ran)
@@ -812,6 +860,10 @@ def print_summary(s: dict) -> None:
         f"{s['noise_scales']}"
     )
     print(f"  recall by hidden share [visible, found, recall] {s['recall_by_hidden']}")
+    if s["missed_unhidden_why"]:
+        print(
+            f"  unhidden signs missed, decoded alone on their true box: {s['missed_unhidden_why']}"
+        )
     for m in ("baseline", "pnp", "smoothed"):
         r = s[m]
         frac = 100 * r["ok_beyond_3sigma"] / r["ok"] if r["ok"] else 0.0
@@ -851,6 +903,10 @@ def main(argv: list[str] | None = None) -> int:
         "--oracle", action="store_true",
         help="also estimate each flight from its observations with true keypoints",
     )  # fmt: skip
+    ap.add_argument(
+        "--why-missed", action="store_true",
+        help="decode each unhidden sign the run missed on its true box (detector or decoder?)",
+    )  # fmt: skip
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     specs = QUICK_SET if args.quick else DEFAULT_SET
@@ -862,7 +918,15 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for spec in specs:
         results.append(
-            evaluate(spec, work, args.rerun, args.surveys, args.drop_lens_model, args.oracle)
+            evaluate(
+                spec,
+                work,
+                args.rerun,
+                args.surveys,
+                args.drop_lens_model,
+                args.oracle,
+                args.why_missed,
+            )  # fmt: skip
         )
         print_flight(results[-1])
     summary = pooled(results)

@@ -160,3 +160,24 @@ def test_ok_poses_beyond_3_sigma_are_counted(scripts, flight, tmp_path):
     assert (m["ok"], m["ok_beyond_3sigma"], m["posed"]) == (len(gt), 1, len(gt))
     assert m["max_m"] == pytest.approx(0.04)
     assert m["status"]["bridged"] == pytest.approx(1 / (len(gt) + 1), abs=1e-4)
+
+
+def test_a_dropped_unhidden_sign_is_missed_and_decodes_on_its_true_box(scripts, flight):
+    _, eval_flight = scripts
+    out, obs = flight
+    truth = _read(out / "truth.jsonl")
+    frames = _read(obs)
+    before = eval_flight.check_codes(frames, truth)
+    # Drop the first observation of a sign no occluder touches.
+    i, code = next(
+        (n, s["code"])
+        for n, f in enumerate(frames)
+        for s in f["signs"]
+        if next(t for t in truth[f["frame"]]["signs"] if t["code"] == s["code"])["hidden"] == 0
+    )
+    frames[i]["signs"] = [s for s in frames[i]["signs"] if s["code"] != code]
+    after = eval_flight.check_codes(frames, truth)
+    assert len(after.missed) == len(before.missed) + 1
+    reasons = eval_flight.missed_reasons(out, truth, after, load_map(bundled_map_path()).codes)
+    assert reasons.get("decoded on its true box", 0) >= 1
+    assert sum(reasons.values()) == sum(m[3] == 0.0 for m in after.missed)
