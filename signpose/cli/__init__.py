@@ -11,14 +11,18 @@ import argparse
 import contextlib
 import importlib
 import logging
+import math
 import os
 import signal
 import sys
 import threading
 from pathlib import Path
+from typing import NoReturn
+
+import cv2
 
 from signpose import __version__
-from signpose.core.errors import SignposeError, one_line
+from signpose.core.errors import InputError, SignposeError, one_line
 from signpose.frontend.sign import ALL_CODES
 from signpose.pipeline import ObserveSettings
 
@@ -94,6 +98,17 @@ class DefaultsHelpFormatter(argparse.HelpFormatter):
         return f"{text} (default: %(default)s)"
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """argparse's usage errors as one line on stderr and exit 2, like every other bad input.
+
+    argparse prints the whole usage block (ten lines for ``run``) before the one
+    line that says what is wrong; ``--help`` still shows the usage.
+    """
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def add_global_options(parser: argparse.ArgumentParser, top: bool) -> None:
     """GLOBAL_OPTIONS on ``parser``; below the top they only override when given."""
     for flags, help_text in GLOBAL_OPTIONS:
@@ -105,7 +120,7 @@ def add_global_options(parser: argparse.ArgumentParser, top: bool) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineErrorParser(
         prog="signpose",
         description="UAV trajectories from coded signs on power pylons.",
         formatter_class=DefaultsHelpFormatter,
@@ -132,6 +147,8 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    if not (args.verbose or args.debug):
+        quiet_opencv()
     try:
         with _sigterm_as_interrupt():
             code = args.func(args)
@@ -159,6 +176,18 @@ def main(argv: list[str] | None = None) -> int:
     return EXIT_OK if code is None else int(code)
 
 
+def quiet_opencv() -> None:
+    """OpenCV's own warnings off stderr (``[ WARN:0@4.0] global grfmt_png.cpp ... incomplete``).
+
+    signpose says the same in its own words (``000020.png: cannot read image;
+    skipped``); OpenCV's line beside it broke the one-line error. The variable
+    reaches the processes that observe chunks (they import cv2 afresh);
+    ``--verbose`` and ``--debug`` keep OpenCV's messages.
+    """
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+
 def _stdout_to_devnull() -> None:
     """Point stdout at /dev/null, so that Python's flush at exit does not fail on the pipe."""
     # No file descriptor behind stdout (a test's capture): nothing to do.
@@ -184,7 +213,7 @@ def add_gt_offset(parser: argparse.ArgumentParser) -> None:
     """--gt-offset SECONDS: the ground truth on a shifted clock (compare, run)."""
     parser.add_argument(
         "--gt-offset",
-        type=float,
+        type=finite_float,
         default=0.0,
         metavar="SECONDS",
         help="added to the ground truth's stamps (a known shift between the two clocks)",
@@ -196,7 +225,7 @@ def add_search(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-tracking", action="store_true", help="search every full frame")
     parser.add_argument(
         "--workers",
-        type=int,
+        type=count_arg,
         default=0,
         help="processes observing the flight's chunks of 100 frames at once (default: 2 if "
         ">1 core; 1: inline); the output does not depend on it",
@@ -211,6 +240,51 @@ def observe_settings(args: argparse.Namespace) -> ObserveSettings:
         workers=args.workers,
         cascade_path=str(args.cascade or ""),
     )
+
+
+def count_arg(text: str) -> int:
+    """argparse type for a whole number >= 0 (``--workers``, ``--seed``)."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"give a whole number >= 0, got {text!r}")
+    return n
+
+
+def finite_float(text: str) -> float:
+    """argparse type for a finite number (``--gt-offset``): nan or inf would match no stamp."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = float("nan")
+    if not math.isfinite(x):
+        raise argparse.ArgumentTypeError(f"give a finite number, got {text!r}")
+    return x
+
+
+def out_folder_arg(text: str) -> Path:
+    """argparse type for an output folder: a file of that name is refused before any work."""
+    p = Path(text)
+    if p.exists() and not p.is_dir():
+        raise argparse.ArgumentTypeError(
+            f"{text} is a file; --out names a folder (a new or an existing one)"
+        )
+    return p
+
+
+def check_fps_input(input_path: Path, fps: float | None) -> None:
+    """InputError for --fps with a file input: only an image folder takes its times from it.
+
+    A video's or a log's frame times come from the file (``--start-time`` sets a
+    video's start); --fps was ignored there without a word.
+    """
+    if fps is not None and input_path.is_file():
+        raise InputError(
+            f"{input_path}: --fps is for an image folder; a video or log file gives its own "
+            "frame times (a video's start: --start-time)"
+        )
 
 
 def codes_arg(text: str) -> tuple[str, ...]:

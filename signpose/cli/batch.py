@@ -7,7 +7,14 @@ import sys
 from pathlib import Path
 
 from signpose.batch import SUMMARY_NAME, FlightOutcome, FlightStatus, run_batch
-from signpose.cli import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, add_cascade, add_quiet
+from signpose.cli import (
+    EXIT_INPUT,
+    EXIT_INTERNAL,
+    EXIT_OK,
+    add_cascade,
+    add_quiet,
+    out_folder_arg,
+)
 from signpose.core.errors import InputError
 
 
@@ -26,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("inputs", type=Path, nargs="+", metavar="INPUT", help="flights")
     p.add_argument("--map", type=Path, required=True, help="sign map YAML")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--out", type=out_folder_arg, required=True, help="output folder")
     p.add_argument("--camera", type=Path, help="camera file for every flight")
     p.add_argument("--topic", help="MCAP image topic")
     p.add_argument("--fps", type=float, help="frame rate of image folders without frames.csv")

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from signpose import pipeline
-from signpose.cli import add_cascade, add_quiet
+from signpose.cli import add_cascade, add_quiet, out_folder_arg
 from signpose.cli.run import print_result
 
 
@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "per-frame method and the smoother on it, compare both with the ground truth and "
         "write plots and result.mcap (open it in Foxglove) into --out.",
     )
-    p.add_argument("--out", type=Path, default=Path("demo-out"), help="output folder")
+    p.add_argument("--out", type=out_folder_arg, default=Path("demo-out"), help="output folder")
     p.add_argument("--frames", type=int, default=210, help="frames to simulate (default 210)")
     p.add_argument("--width", type=int, default=1920, help="image width [px]")
     p.add_argument("--height", type=int, default=1080, help="image height [px]")

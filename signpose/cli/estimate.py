@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from signpose.cli import add_quiet
+from signpose.cli import add_quiet, out_folder_arg
 from signpose.cli.run import add_telemetry, fusion_settings, telemetry_request
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("observations", type=Path, help="observations JSONL")
     p.add_argument("--map", required=True, type=Path, help="sign map YAML")
     p.add_argument("--camera", required=True, type=Path, help="camera calibration YAML")
-    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--out", required=True, type=out_folder_arg, help="output folder")
     p.add_argument(
         "--method",
         choices=("baseline", "pnp", "smoothed", "all"),

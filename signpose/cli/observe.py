@@ -7,7 +7,14 @@ import sys
 from pathlib import Path
 
 from signpose import pipeline
-from signpose.cli import add_cascade, add_quiet, add_search, codes_arg, observe_settings
+from signpose.cli import (
+    add_cascade,
+    add_quiet,
+    add_search,
+    check_fps_input,
+    codes_arg,
+    observe_settings,
+)
 from signpose.core.errors import OutputError
 from signpose.io.camera_file import load_camera
 from signpose.io.sources import open_source
@@ -36,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_fps_input(args.input, args.fps)
     sign_map = load_map(args.map) if args.map else None
     camera = load_camera(args.camera) if args.camera else None
     parent = args.out.parent if str(args.out.parent) else Path(".")

@@ -20,7 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="refine the sign map from several flights of one site",
         description="Solve several flights of one site jointly (one trajectory per flight, "
         "the signs shared as rigid bodies with the survey priors) and write the refined map "
-        "(--out, in the map schema) and <out>.json with each sign's posterior sigma, frames "
+        "(--out, in the map schema) and the same name with .json (site.yaml -> site.json) with "
+        "each sign's posterior sigma, frames "
         f"seen and how far it moved; signs moved by more than {MOVED_SIGMAS:g} survey sigmas "
         "are named.",
     )

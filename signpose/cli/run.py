@@ -15,8 +15,10 @@ from signpose.cli import (
     add_gt_offset,
     add_quiet,
     add_search,
+    check_fps_input,
     codes_arg,
     observe_settings,
+    out_folder_arg,
 )
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings
@@ -44,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("input", type=Path, help="video file, image folder or .mcap log")
     p.add_argument("--map", type=Path, required=True, help="sign map YAML")
     p.add_argument("--camera", type=Path, help="camera file (default: the log's calibration)")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--out", type=out_folder_arg, required=True, help="output folder")
     p.add_argument("--gt", type=Path, help="ground truth TUM: compare and print the table")
     add_gt_offset(p)
     p.add_argument("--with-images", action="store_true", help="put the images into result.mcap")
@@ -201,6 +203,7 @@ def print_result(result: RunResult, out: TextIO | None = None, quiet: bool = Fal
 
 
 def run(args: argparse.Namespace) -> int:
+    check_fps_input(args.input, args.fps)
     sign_map = load_map(args.map)
     camera = load_camera(args.camera) if args.camera else None
     settings = RunSettings(

@@ -7,7 +7,7 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
-from signpose.cli import add_quiet
+from signpose.cli import add_quiet, count_arg, out_folder_arg
 from signpose.core.errors import InputError
 from signpose.maps.loader import bundled_map_path, load_map
 from signpose.sim.flight import FORMATS, HARD, SimSettings, frames_for_duration, simulate
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--map", type=Path, default=None, help="sign map YAML (default: the bundled demo pylon)"
     )
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--out", type=out_folder_arg, required=True, help="output folder")
     length = p.add_mutually_exclusive_group()
     length.add_argument(
         "--frames",
@@ -63,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=d.trajectory,
         help=f"flight (default {d.trajectory})",
     )
-    p.add_argument("--seed", type=int, default=d.seed, help="random seed (default 0)")
+    p.add_argument("--seed", type=count_arg, default=d.seed, help="random seed (default 0)")
     p.add_argument("--format", choices=FORMATS, default=d.format, help="frame output format")
     p.add_argument(
         "--distance", type=float, default=d.distance_m, help="distance from the signs [m]"

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from signpose.cli import add_quiet
+from signpose.cli import add_quiet, count_arg
 from signpose.core.errors import InputError, OutputError
 from signpose.io.boxes import read_boxes
 from signpose.maps.loader import bundled_map_path, load_map
@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "procedural/bundled background images; write it as OpenCV cascade XML.",
     )
     p.add_argument("--out", required=True, type=Path, help="output .xml")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=count_arg, default=0, help="random seed (default 0)")
     p.add_argument("--positives", type=int, default=3000, help="positive windows")
     p.add_argument("--negatives", type=int, default=2500, help="negative windows per stage")
     p.add_argument("--features", type=int, default=3000, help="candidate features per stage")

@@ -1,0 +1,131 @@
+"""What a new user met at the command line: each bad input one line on stderr, exit 2.
+
+Found by a review as a new user (README and docs/cli.md in hand): argparse's
+usage block before its error, OpenCV's own warning beside signpose's line for
+a cut PNG, ``--workers -1`` / ``--seed -1`` accepted or crashing, ``--gt-offset
+nan`` reported as a ground truth spanning "nan to nan s", ``--out`` naming a
+file refused only as "cannot create output folder (File exists)" (``estimate``:
+after the whole solve), and ``--fps`` with a video ignored without a word.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import pytest
+from conftest import simulate_tiny, truth_detector
+from signpose.maps.loader import bundled_map_path
+
+from signpose import pipeline
+from signpose.cli import check_fps_input, main
+
+MAP = str(bundled_map_path())
+
+
+def _one_line(err: str, *needles: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err and "usage:" not in err
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+def _exit_code(argv: list[str]) -> int:
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    return info.value.code
+
+
+@pytest.fixture
+def no_pipeline(monkeypatch):
+    """Any work at all fails the test: the refusal must come before it."""
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the command started working on a refused input")
+
+    monkeypatch.setattr(pipeline, "run", refuse)
+    monkeypatch.setattr(pipeline, "observe", refuse)
+
+
+def test_a_usage_error_is_one_line_naming_the_option(tmp_path, capsys, no_pipeline):
+    argv = ["run", "v.mp4", "--map", MAP, "--out", str(tmp_path / "o"), "--workers", "abc"]
+    assert _exit_code(argv) == 2
+    _one_line(capsys.readouterr().err, "signpose run: error:", "--workers", "'abc'", "--help")
+    assert _exit_code(["run", "v.mp4", "--out", str(tmp_path / "o")]) == 2  # no --map
+    _one_line(capsys.readouterr().err, "--map")
+    assert _exit_code(["run", "--help"]) == 0  # the usage is still there when asked for
+    assert "usage: signpose run" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "argv, needles",
+    [
+        (["run", "v.mp4", "--map", MAP, "--out", "o", "--workers", "-1"], ("--workers", "-1")),
+        (["observe", "v.mp4", "--out", "o.jsonl", "--workers", "-2"], ("--workers", "-2")),
+        (["simulate", "--out", "s", "--seed", "-1"], ("--seed", "-1")),  # was: internal error
+        (["train-detector", "--out", "c.xml", "--seed", "-3"], ("--seed", "-3")),
+        (["compare", "d", "--gt", "gt.tum", "--gt-offset", "nan"], ("--gt-offset", "nan")),
+        (["run", "v.mp4", "--map", MAP, "--out", "o", "--gt-offset", "inf"], ("--gt-offset",)),
+    ],
+)
+def test_numbers_out_of_range_are_refused_by_name(argv, needles, capsys, no_pipeline):
+    assert _exit_code(argv) == 2
+    _one_line(capsys.readouterr().err, *needles)
+
+
+def test_out_naming_a_file_is_refused_before_any_work(tmp_path, capsys, no_pipeline, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    Path("taken").write_text("a user's file\n")
+    for argv in (
+        ["run", "v.mp4", "--map", MAP, "--out", "taken"],
+        ["estimate", "obs.jsonl", "--map", MAP, "--camera", "c.yaml", "--out", "taken"],
+        ["simulate", "--out", "taken", "--frames", "2"],
+        ["batch", "v.mp4", "--map", MAP, "--out", "taken"],
+        ["demo", "--out", "taken"],
+    ):
+        assert _exit_code(argv) == 2, argv
+        _one_line(capsys.readouterr().err, f"signpose {argv[0]}: error:", "taken is a file")
+    assert Path("taken").read_text() == "a user's file\n"
+    assert sorted(os.listdir(".")) == ["taken"]
+
+
+def test_fps_with_a_video_or_log_file_is_refused(tmp_path, capsys, no_pipeline):
+    video = tmp_path / "flight.mp4"
+    video.write_bytes(b"\x00" * 64)  # never opened: refused on the option alone
+    for command, out in (("run", tmp_path / "o"), ("observe", tmp_path / "o.jsonl")):
+        argv = [command, str(video), "--map", MAP, "--out", str(out), "--fps", "25"]
+        assert main(argv) == 2
+        _one_line(capsys.readouterr().err, str(video), "--fps is for an image folder")
+    check_fps_input(tmp_path, 25.0)  # a folder takes it
+    check_fps_input(video, None)  # and a file without it is fine
+
+
+@pytest.fixture
+def opencv_warnings_on(monkeypatch):
+    """OpenCV as a fresh process has it: warnings on, no OPENCV_LOG_LEVEL."""
+    level = cv2.utils.logging.getLogLevel()
+    monkeypatch.delenv("OPENCV_LOG_LEVEL", raising=False)
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_WARNING)
+    yield
+    cv2.utils.logging.setLogLevel(level)
+
+
+def test_a_cut_png_gives_signpose_s_line_only(tmp_path, capfd, monkeypatch, opencv_warnings_on):
+    flight = simulate_tiny(tmp_path / "sim", frames=6, fmt="png")
+    monkeypatch.setattr(pipeline, "make_detector", lambda settings: truth_detector(flight))
+    frames = Path(flight.frames_path)
+    cut = frames / "000003.png"
+    cut.write_bytes(cut.read_bytes()[:400])  # OpenCV: "PNG input buffer is incomplete"
+    out = tmp_path / "out"
+    code = main(
+        ["run", str(frames), "--map", MAP, "--camera", str(flight.camera_path),
+         "--out", str(out), "--no-plots", "--quiet", "--workers", "1"]
+    )  # fmt: skip
+    assert code == 2
+    err = capfd.readouterr().err  # the file descriptor: OpenCV writes past sys.stderr
+    assert "WARN" not in err, err
+    _one_line(err, "000003.png: cannot read image; skipped", "5 readable frames")
+    assert os.environ["OPENCV_LOG_LEVEL"] == "ERROR"  # for the processes that observe chunks
