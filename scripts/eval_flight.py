@@ -154,7 +154,8 @@ def without(spec: FlightSpec, names: list[str]) -> FlightSpec:
         return spec
     changes = {k: v for n in names for k, v in ABLATIONS[n].items()}
     name = spec.name + "".join(f"-no_{n}" for n in names)
-    return replace(spec, name=name, options=replace(spec.options, **changes))
+    note = f"{spec.note} (without: {', '.join(names)})"
+    return replace(spec, name=name, note=note, options=replace(spec.options, **changes))
 
 
 # --------------------------------------------------------------------------- flights
