@@ -10,6 +10,7 @@ after the whole solve), and ``--fps`` with a video ignored without a word.
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from signpose.maps.loader import bundled_map_path
 
 from signpose import pipeline
 from signpose.cli import check_fps_input, main
+from signpose.cli.run import trust_warnings
 
 MAP = str(bundled_map_path())
 
@@ -129,3 +131,54 @@ def test_a_cut_png_gives_signpose_s_line_only(tmp_path, capfd, monkeypatch, open
     assert "WARN" not in err, err
     _one_line(err, "000003.png: cannot read image; skipped", "5 readable frames")
     assert os.environ["OPENCV_LOG_LEVEL"] == "ERROR"  # for the processes that observe chunks
+
+
+def _write_json(path: Path, data: dict) -> Path:
+    path.write_text(json.dumps(data))
+    return path
+
+
+def _report(tmp_path: Path, bridged: int, misdecoded: list[dict] | None = None) -> Path:
+    """report.json of 60 frames, 50 with signs: 10 bridged frames are the sign-free ones."""
+    return _write_json(
+        tmp_path / "report.json",
+        {
+            "frames": 60,
+            "frames_with_signs": 50,
+            "coverage": {"pnp": {"bridged": 0}, "smoothed": {"bridged": bridged}},
+            "outliers": {"misdecoded": misdecoded or []},
+        },
+    )
+
+
+def test_trust_warnings_name_what_to_check(tmp_path):
+    clean = _report(tmp_path, bridged=10)
+    refined = _write_json(tmp_path / "map_refined.json", {"moved": [], "moved_sigmas": 3.0})
+    assert trust_warnings([clean, refined]) == []
+    # Signs in view, every observation rejected: "bridged" frames beyond the sign-free ones.
+    (line,) = trust_warnings([_report(tmp_path, bridged=55)])
+    assert "smoothed: at least 45 frames with signs in view" in line and "survey" in line
+    swapped = [{"code": "0001", "likely_code": "0010"}] * 3 + [
+        {"code": "0010", "likely_code": "0001"}
+    ]
+    (line,) = trust_warnings([_report(tmp_path, bridged=10, misdecoded=swapped)])
+    assert "4 readings" in line and "0001 where the map has 0010: 3" in line
+    moved = _write_json(tmp_path / "map_refined.json", {"moved": ["0100"], "moved_sigmas": 3.0})
+    (line,) = trust_warnings([moved])
+    assert "sign(s) 0100 more than 3 survey sigmas" in line
+    assert trust_warnings([]) == []  # files of an earlier run in the folder are not read
+
+
+def test_run_prints_the_warnings_on_stderr_and_exits_0(tmp_path, capsys, monkeypatch):
+    report = _report(tmp_path, bridged=55)
+    result = pipeline.RunResult(
+        out_dir=tmp_path, n_frames=60, coverage={"smoothed": 1.0}, position_rmse_m={},
+        comparison=None, comparison_table="", timing_s={}, fps=1.0, problems=(),
+        files=(report,),
+    )  # fmt: skip
+    monkeypatch.setattr(pipeline, "run", lambda *a, **k: result)
+    video = tmp_path / "v.mp4"
+    video.write_bytes(b"\x00")
+    argv = ["run", str(video), "--map", MAP, "--out", str(tmp_path / "o"), "-q"]
+    assert main(argv) == 0
+    _one_line(capsys.readouterr().err, "signpose run: warning: smoothed: at least 45 frames")

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from signpose.cli import add_quiet, out_folder_arg
-from signpose.cli.run import add_telemetry, fusion_settings, telemetry_request
+from signpose.cli.run import add_telemetry, fusion_settings, telemetry_request, trust_warnings
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
 from signpose.estimator.refine import refine_flight
@@ -128,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
     written += _geo_files(args, sign_map, result, telemetry, request, notes)
     for line in notes:
         print(line)
+    for line in trust_warnings(written):
+        print(f"signpose estimate: {line}", file=sys.stderr)
     if args.quiet:  # the result and errors only
         print(status_line(result))
         print(f"wrote {len(written)} files into {args.out}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 from typing import TextIO
@@ -26,6 +27,7 @@ from signpose.estimator.fusion import FusionSettings, body_T_cam_from_mounting
 from signpose.estimator.smoother import SmootherSettings
 from signpose.io.camera_file import load_camera
 from signpose.io.clock import parse_start_time
+from signpose.io.results import read_report
 from signpose.io.telemetry import TelemetryRequest
 from signpose.maps.loader import load_map
 from signpose.pipeline import STAGES, RunResult, RunSettings
@@ -202,6 +204,52 @@ def print_result(result: RunResult, out: TextIO | None = None, quiet: bool = Fal
         print(f"  {path}", file=out)
 
 
+def trust_warnings(files: tuple[Path, ...] | list[Path]) -> list[str]:
+    """What a run's own report.json and map_refined.json say the user must check, one line each.
+
+    Frames where signs were in view but a method rejected every observation
+    and bridged them with its motion prior (more ``bridged`` frames than frames
+    without signs: one sign surveyed 0.5 m off made the smoother do that on 45
+    of 60 frames, exit 0, nothing said), readings of one code where the map has
+    another (``misdecoded``: codes swapped in the survey), and signs the flight
+    moved by more than the refinement's threshold against the survey
+    (``moved``). Only the files this run wrote (``files``) are read; an older
+    run's are not. Warnings, not errors: the outputs stand and the exit code is 0.
+    """
+    by_name = {Path(p).name: Path(p) for p in files}
+    lines = []
+    if "report.json" in by_name:
+        report = read_report(by_name["report.json"])
+        without_signs = report.get("frames", 0) - report.get("frames_with_signs", 0)
+        for method, cov in report.get("coverage", {}).items():
+            seen = cov.get("bridged", 0) - without_signs
+            if seen > 0:
+                lines.append(
+                    f"warning: {method}: at least {seen} frames with signs in view had every "
+                    "observation rejected and are only bridged by the motion prior; the map and "
+                    "the images disagree there: check the survey (report.json 'outliers')"
+                )
+        pairs = Counter(
+            f"{m.get('code')} where the map has {m.get('likely_code')}"
+            for m in report.get("outliers", {}).get("misdecoded", [])
+        )
+        if pairs:
+            lines.append(
+                f"warning: {sum(pairs.values())} readings sit where the map has another code ("
+                + ", ".join(f"{k}: {n}" for k, n in pairs.most_common(3))
+                + "): two codes swapped in the survey, or misread signs; set aside as outliers"
+            )
+    if "map_refined.json" in by_name:
+        refined = read_report(by_name["map_refined.json"])
+        if moved := refined.get("moved"):
+            lines.append(
+                f"warning: the flight puts sign(s) {', '.join(moved)} more than "
+                f"{refined.get('moved_sigmas', 3):g} survey sigmas from the map: check the survey "
+                "(map_refined.json)"
+            )
+    return lines
+
+
 def run(args: argparse.Namespace) -> int:
     check_fps_input(args.input, args.fps)
     sign_map = load_map(args.map)
@@ -233,6 +281,8 @@ def run(args: argparse.Namespace) -> int:
         progress=args.progress,
     )
     print_result(result, quiet=args.quiet)
+    for line in trust_warnings(result.files):
+        print(f"signpose run: {line}", file=sys.stderr)
     if result.problems:
         print(
             f"signpose run: error: {'; '.join(result.problems)} "
