@@ -15,8 +15,7 @@ listed in report.json.
 The flight is cut into chunks of
 ``chunk_frames`` source positions (``io.sources.read_range``: a seek to the
 chunk's start), each observed with its own tracking (a full-frame search at
-its start) inline or in one of ``workers`` processes (the main process
-observes the first chunk itself while they start), and the frames are
+its start) inline or in one of ``workers`` processes, and the frames are
 written in flight order as chunks finish; the chunks do not depend on the
 number of workers. A process that dies loses its chunk only: the run goes on
 and names the frames in ``problems`` (report.json: ``missing_frames``).
@@ -50,11 +49,9 @@ import math
 import multiprocessing
 import multiprocessing.connection as mp_connection
 import os
-import queue
 import resource
 import shutil
 import signal
-import threading
 import time
 import uuid
 from collections import deque
@@ -168,8 +165,9 @@ WORKER_OUT_OF_MEMORY = 75
 # Set to a folder, every chunk and plot process writes into it, per job, what it cost
 # (``<kind>-<pid>-<job>.json``: CPU before the job, i.e. the process's own start, and
 # during it, wall stamps of the job) and, with PROFILE_STATS_ENV also set, the job's
-# cProfile statistics (``.prof``, thread CPU as the clock). For scripts/bench_pipeline.py
-# --profile; nothing is written without it.
+# cProfile statistics (``.prof``, thread CPU as the clock). scripts/bench_pipeline.py sets
+# it to count those processes' CPU (the forkserver's children: no rusage of the run counts
+# them); nothing is written without it.
 PROFILE_ENV = "SIGNPOSE_PROFILE_DIR"
 PROFILE_STATS_ENV = "SIGNPOSE_PROFILE_STATS"
 
@@ -196,8 +194,7 @@ class ObserveSettings:
         cascade_path: detector cascade XML; "" = the bundled one.
         prefetch: read and decode the input in a background thread (per chunk).
         workers: processes observing chunks at once (0 = 2 on a multi-core
-            machine; 1 = inline); with processes, the main one observes the
-            first chunk too. The output does not depend on it.
+            machine; 1 = inline). The output does not depend on it.
         track_lag_frames: tracking predicts frame i from the pose of frame
             i - this (and the one before it).
         chunk_frames: source positions per chunk; each chunk starts its
@@ -1170,11 +1167,8 @@ class ChunkProcesses:
         self._context = _process_context()
         self._wanted = workers
         self._workers: list[_Worker] = []
-        self._stopped = False  # by ``stop``: ``run`` ends, no process is started
 
     def _start(self) -> _Worker:
-        if self._stopped:
-            raise RuntimeError("chunk processes stopped")
         mine, theirs = self._context.Pipe()
         process = self._context.Process(
             target=_chunk_worker, args=(theirs,), name="signpose-chunk", daemon=True
@@ -1183,9 +1177,6 @@ class ChunkProcesses:
         theirs.close()
         worker = _Worker(process, mine)
         self._workers.append(worker)
-        if self._stopped:  # by another thread while this one started
-            self.stop()
-            raise RuntimeError("chunk processes stopped")
         return worker
 
     def run(self, jobs: Iterable[ChunkJob]) -> Iterator[ChunkFrame | ChunkResult | LostChunk]:
@@ -1193,7 +1184,7 @@ class ChunkProcesses:
         todo = deque(jobs)
         idle = [self._start() for _ in range(min(self._wanted, len(todo)))]
         busy: list[_Worker] = []
-        while (todo or busy) and not self._stopped:
+        while todo or busy:
             while todo and idle:
                 worker = idle.pop()
                 worker.job = todo.popleft()
@@ -1207,9 +1198,8 @@ class ChunkProcesses:
                 if isinstance(answer, ChunkFrame):
                     busy.append(worker)  # the chunk goes on
                 elif isinstance(answer, LostChunk):
-                    with contextlib.suppress(ValueError):  # gone when stopped
-                        self._workers.remove(worker)
-                    if todo and not self._stopped:
+                    self._workers.remove(worker)
+                    if todo:
                         idle.append(self._start())
                 else:
                     idle.append(worker)
@@ -1253,12 +1243,11 @@ class ChunkProcesses:
         self._workers = []
 
     def stop(self) -> None:
-        """After Ctrl-C: end every process at once (``run`` then ends)."""
-        self._stopped = True
-        for worker in list(self._workers):
+        """After Ctrl-C: end every process at once."""
+        for worker in self._workers:
             with contextlib.suppress(OSError, ValueError):
                 worker.process.kill()
-        for worker in list(self._workers):
+        for worker in self._workers:
             worker.process.join(WORKER_JOIN_S)
         self._workers = []
 
@@ -1327,14 +1316,13 @@ def _merge_in_order(
     answers: Iterable[ChunkFrame | ChunkResult | LostChunk],
     out: _Collected,
     reads: dict[int, RangeRead],
-    following: int = 0,
 ) -> None:
     """The workers' frames into ``out`` in flight order: the earliest unfinished chunk's
-    as they come, the later chunks' once every chunk before them is done. ``following``:
-    the first chunk the answers hold (those before it are in ``out``)."""
+    as they come, the later chunks' once every chunk before them is done."""
     done: dict[int, ChunkResult | LostChunk] = {}
     early: dict[int, list[ChunkFrame]] = {}
     last_position: dict[int, int] = {}
+    following = 0
     for answer in answers:
         if isinstance(answer, ChunkFrame):
             last_position[answer.number] = answer.obs.frame
@@ -1382,76 +1370,34 @@ def _observe_chunks(
 ) -> list[RangeRead]:
     """Every chunk, in processes or inline; frames streamed in flight order as chunks finish.
 
-    With processes, this one observes the first chunk itself while they start
-    (the forkserver imports the pipeline first: ~1 s CPU) and observe the
-    others; a thread takes their frames meanwhile, so no process waits on a
-    full pipe. ``workers`` processes and this one observe at once: on 2 cores
-    and a 300-frame flight (3 chunks) no core idles while the last chunk is
-    observed alone, as it did with 2 processes and 3 chunks.
+    Tried and dropped (issue 14): this process observing the first chunk itself while the
+    processes start and observe the rest (a thread taking their frames), so that the
+    forkserver's start (importing the pipeline, ~1 s CPU) and the last chunk observed
+    alone on one core leave no core idle. Same bytes, but on the 300-frame bench sim flight
+    with 2 processes at load ~8 a fresh process per run took 31.4 s mean of 3 against 24.7
+    s, 34.4 against 34.3 s within one process, and 1-3 s more CPU: three chunks observed
+    at once on 2 cores cost 1.25-1.5x CPU per frame.
+
+    Raises:
+        RuntimeError: every chunk's process died (nothing was observed).
     """
     if workers <= 1 or det is not None or len(jobs) == 1:
         if det is None:
             det = jobs[0].make(jobs[0].settings)
         return [run_chunk(job, det, out, source).read for job in jobs]
+    reads: dict[int, RangeRead] = {}
     pool = ChunkProcesses(workers)
-    answers = _AnswerThread(pool, jobs[1:])
     try:
-        first = run_chunk(jobs[0], jobs[0].make(jobs[0].settings), out, source)
-        reads = {0: first.read}
-        _merge_in_order(answers, out, reads, following=1)
+        _merge_in_order(pool.run(jobs), out, reads)
     except BaseException:
-        answers.stop()
+        pool.stop()
         raise
-    answers.join()
     pool.close()
-    return [reads[k] for k in sorted(reads)]
-
-
-class _AnswerThread:
-    """A thread that takes the chunk processes' answers as they come (``ChunkProcesses.run``),
-    for this process to merge when it is ready; iterating gives them in that order, and
-    raises what the thread met."""
-
-    _END = object()
-
-    def __init__(self, pool: ChunkProcesses, jobs: list[ChunkJob]) -> None:
-        self._pool = pool
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        self._thread = threading.Thread(
-            target=self._take, args=(jobs,), name="signpose-chunk-answers", daemon=True
+    if not reads:
+        raise RuntimeError(
+            f"{source.path}: every process observing the flight died ({out.lost[0].reason})"
         )
-        self._thread.start()
-
-    def _take(self, jobs: list[ChunkJob]) -> None:
-        try:
-            for answer in self._pool.run(jobs):
-                self._queue.put(answer)
-        except BaseException as exc:  # noqa: BLE001 - raised again where it is merged
-            self._queue.put(_Raised(exc))
-            return
-        self._queue.put(self._END)
-
-    def __iter__(self) -> Iterator[ChunkFrame | ChunkResult | LostChunk]:
-        while True:
-            item = self._queue.get()
-            if item is self._END:
-                return
-            if isinstance(item, _Raised):
-                raise item.exc
-            yield item
-
-    def join(self) -> None:
-        self._thread.join()
-
-    def stop(self) -> None:
-        """After Ctrl-C or an error: end the processes; the thread then ends (a process
-        it was starting meanwhile is ended once started)."""
-        self._pool.stop()
-
-
-@dataclass(frozen=True)
-class _Raised:
-    exc: BaseException
+    return [reads[k] for k in sorted(reads)]
 
 
 def _observe_in_order(
@@ -1762,9 +1708,7 @@ def run(
     flight, begun = _telemetry_for(s, sign_map, flight, source), begin_run(out)
     made = {"detector": detector, "detector_factory": detector_factory}
     obs, per_frame = _observe_run(source, sign_map, cam, s, progress, out, made)
-    for line in obs.problems:
-        if echo is not None:
-            echo(f"warning: {line}")
+    _warn(echo, obs.problems)
     check_codes_seen(obs.frames, sign_map, str(source.path))
     _check_gt_overlap(obs.frames, source.path, gt, gt_path)
     with _plotters(s) as plotters:  # started now: their start overlaps the estimation
@@ -1797,6 +1741,13 @@ def run(
     )
     section = _pipeline_section(result, source, obs, s) | {"run_id": begun.run_id}
     return _write_reports(out, result, section, begun)
+
+
+def _warn(echo: Callable[[str], None] | None, lines: Iterable[str]) -> None:
+    """Each line to the user as a warning (nowhere without ``echo``)."""
+    if echo is not None:
+        for line in lines:
+            echo(f"warning: {line}")
 
 
 def _seconds(per_frame: PerFrameRun | None) -> dict[str, float]:

@@ -173,3 +173,20 @@ def test_a_source_read_in_order_only_gives_the_same_chunks(real_flight, tmp_path
         assert result.full_frames >= 3  # a full-frame search at each chunk's start
         written.append(out.read_bytes())
     assert written[0] == written[1]
+
+
+def test_a_process_job_writes_its_cpu_where_profile_env_says(tmp_path, monkeypatch):
+    """pipeline.PROFILE_ENV: a job's CPU record (bench_pipeline counts the chunk and plot
+    processes' CPU from these); nothing without it."""
+
+    def work(n, scale=1.0):
+        return scale * sum(i * i for i in range(n))
+
+    monkeypatch.delenv(pipeline.PROFILE_ENV, raising=False)
+    assert pipeline._profiled("chunk", 3, work, 10, scale=2.0) == 570.0
+    monkeypatch.setenv(pipeline.PROFILE_ENV, str(tmp_path))
+    assert pipeline._profiled("chunk", 3, work, 300_000) == work(300_000)
+    (record,) = [json.loads(p.read_text()) for p in tmp_path.iterdir()]
+    assert record["kind"] == "chunk" and record["job"] == 3 and record["pid"] == os.getpid()
+    assert record["cpu_s"] > 0 and record["cpu_before_s"] > 0
+    assert record["start"] <= record["end"]
