@@ -260,6 +260,8 @@ class EstimateResult:
             were scaled by after that, from PnP's scatter about the smoothed
             trajectory (``noise_scale.pose_noise_scale``; map taken as exact
             only; 1.0: none).
+        warnings: what the user must be told about the whole flight (one
+            line each), e.g. a noise scale too large to be noise.
     """
 
     methods: dict[str, MethodEstimate]
@@ -272,6 +274,16 @@ class EstimateResult:
     fusion: FusionResult | None = None
     pixel_noise_scale: float = 1.0
     pose_noise_scale: float = 1.0
+    warnings: tuple[str, ...] = ()
+
+
+# A pixel noise scale above this is not noise the decoder misjudged but a model
+# that does not fit the video (``distrusted``). Measured: correct camera files
+# 1.0-1.45 (the demo; scripts/eval_flight.py's 5 flights through a lens 1.0);
+# the same flights with the lens's distortion left out of camera.yaml 4.4-16,
+# where the scaled sigmas still left 100 % of the `ok` poses beyond 3 sigma
+# at 2-9 m RMSE (``eval_flight.py --drop-lens-model``).
+MAX_PIXEL_NOISE_SCALE = 3.0
 
 
 # A per-frame pose spends six of its residuals' degrees of freedom on itself.
@@ -842,6 +854,49 @@ def _per_frame_done(
     return {name: list(done.poses[name]) for name in done.methods}
 
 
+def distrusted(
+    methods: dict[str, MethodEstimate], scale: float
+) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
+    """``methods`` with no pose ``ok`` or ``weak`` when ``scale`` is too large
+    to be noise (``MAX_PIXEL_NOISE_SCALE``), and the warning; else as given.
+
+    Keypoints that miss their predictions by several times their sigmas in
+    the median frame say the camera model or the map does not fit the video
+    (a lens distortion left out of the calibration bends every ray the same
+    way from frame to frame): scaled sigmas cannot describe such an error,
+    so every pose is marked ``suspect`` (bridged poses stay bridged) rather
+    than reported as one to bet on.
+    """
+    if not scale > MAX_PIXEL_NOISE_SCALE:
+        return methods, ()
+    trusted = (PoseStatus.OK, PoseStatus.WEAK)
+    out = {
+        name: replace(
+            m, status=tuple(PoseStatus.SUSPECT if st in trusted else st for st in m.status)
+        )
+        for name, m in methods.items()
+    }
+    return out, (
+        f"the keypoints miss their predicted places by {scale:.1f}x their sigmas "
+        f"(pixel_noise_scale, at most {MAX_PIXEL_NOISE_SCALE:g} is noise): the camera file "
+        "(focal length, lens distortion, image size) or the map does not fit this video; "
+        "every pose is marked suspect",
+    )
+
+
+def _checked(
+    frames: Sequence[FrameObservations],
+    sign_map: SignMap,
+    camera: CameraModel,
+    methods: dict[str, MethodEstimate],
+    scale: float,
+) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
+    """The signs' orientations checked (``check_orientations``), then ``distrusted``."""
+    if "smoothed" in methods:
+        check_orientations(frames, sign_map, camera, methods["smoothed"])
+    return distrusted(methods, scale)
+
+
 def _noise_scaled(
     frames: Sequence[FrameObservations],
     per_frame: dict[str, list[FramePose]],
@@ -919,8 +974,7 @@ def estimate_trajectories(
     if run is not None:
         methods.update(run.methods)
         timing.update(run.timing_s)
-    if "smoothed" in methods:
-        check_orientations(frames, sign_map, camera, methods["smoothed"])
+    methods, warnings = _checked(frames, sign_map, camera, methods, scale * more)
     base = per_frame.get("baseline", ())
     rejected = tuple((p.frame, p.reason) for p in base if p.world_T_cam is None)
     return EstimateResult(
@@ -940,4 +994,5 @@ def estimate_trajectories(
         fusion=None if run is None else run.fusion,
         pixel_noise_scale=scale * more,
         pose_noise_scale=pose_scale,
+        warnings=warnings,
     )

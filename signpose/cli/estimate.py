@@ -129,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
     written += _geo_files(args, sign_map, result, telemetry, request, notes)
     for line in notes:
         print(line)
+    for line in result.warnings:  # e.g. a camera file that does not fit the video
+        print(f"signpose estimate: warning: {args.camera}: {line}", file=sys.stderr)
     for line in trust_warnings(written):
         print(f"signpose estimate: {line}", file=sys.stderr)
     if args.quiet:  # the result and errors only
