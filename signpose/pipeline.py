@@ -1715,9 +1715,7 @@ def run(
         t0 = time.perf_counter()
         estimate = _estimate(obs, sign_map, cam, s, progress, flight.telemetry, per_frame)
         timing = {**obs.timing_s, "estimate": time.perf_counter() - t0, **_seconds(per_frame)}
-        for line in estimate.warnings:  # e.g. a camera file that does not fit the video
-            if echo is not None:
-                echo(f"warning: {line}")
+        _warn(echo, estimate.warnings)  # e.g. a camera file that does not fit the video
         t0 = time.perf_counter()
         trajs, sigmas = _trajectories(estimate)
         written = _RunFiles(out, s, flight, sign_map, cam, obs, estimate, trajs, sigmas, gt)
