@@ -144,7 +144,9 @@ def test_sigma_grows_when_a_line_crosses_the_face():
     assert clean.code == "1010" and crossed
     assert set(clean.keypoint_sigma_px) == set(clean.keypoints_px)
     su, sv = clean.keypoint_sigma_px["center"]
-    assert 0.0 < su == sv < 0.1  # a clean 80 px sign: a few hundredths of a pixel
+    # a clean 80 px sign: a few hundredths of a pixel, about the same on both axes
+    # (the model is per axis: each part's own residual to the fit is anisotropic)
+    assert 0.0 < su < 0.1 and sv == pytest.approx(su, rel=0.05)
     assert max(r.keypoint_sigma_px["center"][0] for r in crossed) > 2 * su
 
 
