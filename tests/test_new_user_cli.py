@@ -11,6 +11,7 @@ after the whole solve), and ``--fps`` with a video ignored without a word.
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 
@@ -20,7 +21,7 @@ from conftest import simulate_tiny, truth_detector
 from signpose.maps.loader import bundled_map_path
 
 from signpose import pipeline
-from signpose.cli import check_fps_input, main
+from signpose.cli import CommandLogFormatter, check_fps_input, main
 from signpose.cli.run import trust_warnings
 
 MAP = str(bundled_map_path())
@@ -182,3 +183,14 @@ def test_run_prints_the_warnings_on_stderr_and_exits_0(tmp_path, capsys, monkeyp
     argv = ["run", str(video), "--map", MAP, "--out", str(tmp_path / "o"), "-q"]
     assert main(argv) == 0
     _one_line(capsys.readouterr().err, "signpose run: warning: smoothed: at least 45 frames")
+
+
+def test_library_warnings_read_like_the_command_s_own_lines():
+    record = logging.LogRecord(
+        "signpose.estimator.refine", logging.WARNING, __file__, 1,
+        "map_refined.yaml not written: %d frames", (60,), None,
+    )  # fmt: skip
+    line = CommandLogFormatter("run").format(record)
+    assert line == "signpose run: warning: map_refined.yaml not written: 60 frames"
+    verbose = CommandLogFormatter("run", with_logger=True).format(record)
+    assert verbose.startswith("signpose run: warning [signpose.estimator.refine]: map_refined")

@@ -109,6 +109,25 @@ class OneLineErrorParser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+class CommandLogFormatter(logging.Formatter):
+    """Library warnings as the CLI's own lines: ``signpose run: warning: MESSAGE``.
+
+    Was ``WARNING signpose.estimator.refine: MESSAGE`` beside ``signpose run:
+    warning: ...`` from the commands. ``with_logger`` (``--verbose``) adds the
+    logger's name, for diagnostics; a traceback (``--debug``) follows as usual.
+    """
+
+    def __init__(self, command: str, with_logger: bool = False):
+        super().__init__("%(message)s")
+        self.command = command
+        self.with_logger = with_logger
+
+    def format(self, record: logging.LogRecord) -> str:
+        where = f" [{record.name}]" if self.with_logger else ""
+        text = super().format(record)
+        return f"signpose {self.command}: {record.levelname.lower()}{where}: {text}"
+
+
 def add_global_options(parser: argparse.ArgumentParser, top: bool) -> None:
     """GLOBAL_OPTIONS on ``parser``; below the top they only override when given."""
     for flags, help_text in GLOBAL_OPTIONS:
@@ -143,10 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     # Commands read args.progress: bars on a terminal, or when asked for; never with --quiet.
     args.progress = not args.quiet and (args.progress or sys.stderr.isatty())
-    logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
+    handler = logging.StreamHandler()
+    handler.setFormatter(CommandLogFormatter(args.command, with_logger=args.verbose))
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, handlers=[handler])
     if not (args.verbose or args.debug):
         quiet_opencv()
     try:
