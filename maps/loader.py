@@ -19,7 +19,7 @@ from signpose.maps.geodesy import GeoOrigin, enu_from_geodetic
 
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_write
-from signpose.core.nesting import check_nesting
+from signpose.core.nesting import check_nesting, safe_load_unique
 
 ORTHOGONALITY_TOL_DEG = 1.0
 # A map holds at most 16 signs (one per code), a few kB; anything far larger is
@@ -321,7 +321,7 @@ def load_map(path: str | Path) -> SignMap:
         raise InputError(f"{p}: cannot read map file ({exc})") from None
     check_nesting(text, p)
     try:
-        data = yaml.safe_load(text)
+        data = safe_load_unique(text)
     except yaml.YAMLError as exc:
         raise InputError(_yaml_problem(p, exc)) from None
     return parse_map(data, str(p))
@@ -335,6 +335,8 @@ def _yaml_problem(p: Path, exc: yaml.YAMLError) -> str:
     if isinstance(exc, yaml.constructor.ConstructorError) and "tag" in problem:
         tag = problem.split("tag", 1)[1].strip(" '").replace("tag:yaml.org,2002:", "!!")
         return f"{p}: the tag {tag}{at} is not allowed (a map is plain YAML: no tags); remove it"
+    if isinstance(exc, yaml.constructor.ConstructorError) and "duplicate key" in problem:
+        return f"{p}: {problem}{at}; keep one of them"
     return f"{p}: not valid YAML{at}; fix the map syntax"
 
 

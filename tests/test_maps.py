@@ -176,3 +176,17 @@ def test_parse_map_mutations_of_a_valid_map_raise_only_input_error(data):
         assert "fuzz.yaml" in str(exc)
     else:
         assert len(m.signs) == 3
+
+
+def test_a_key_given_twice_is_refused_with_its_line(tmp_path):
+    # yaml.safe_load keeps the last of two equal keys silently: the sign would
+    # sit where the second line says
+    p = tmp_path / "map.yaml"
+    p.write_text(
+        'frame: t\nsigns:\n  - code: "0101"\n    center_m: [0, 0, 1]\n'
+        "    center_m: [0, 0, 3]\n    diameter_m: 0.8\n    sigma_m: 0.01\n"
+    )
+    with pytest.raises(InputError, match=r"duplicate key 'center_m' at line 5"):
+        load_map(p)
+    p.write_text(p.read_text().replace("    center_m: [0, 0, 3]\n", ""))
+    assert load_map(p).signs[0].center_m[2] == 1.0

@@ -35,7 +35,7 @@ import yaml
 
 from signpose.core.errors import InputError
 from signpose.core.fileio import atomic_path, atomic_write
-from signpose.core.nesting import check_nesting
+from signpose.core.nesting import check_nesting, safe_load_unique
 from signpose.estimator.camera import EQUIDISTANT, PLUMB_BOB, CameraModel
 
 ROS_CAMERA_INFO = "camera_info"
@@ -328,7 +328,7 @@ def _read_text(p: Path) -> str:
 def _safe_yaml(text: str, p: Path):
     check_nesting(text, p)
     try:
-        return yaml.safe_load(text)
+        return safe_load_unique(text)
     except yaml.MarkedYAMLError as exc:
         line = exc.problem_mark.line + 1 if exc.problem_mark is not None else "?"
         raise _fail(p, f"not valid YAML at line {line} ({exc.problem})") from None
