@@ -19,8 +19,10 @@ from signpose.estimator.trajectory import Trajectory, quat_xyzw_from_rotation
 from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.frontend.sign import ALL_CODES, KEYPOINT_NAMES
 
+from signpose.core.errors import InputError
 from signpose.io import mcap as mcap_io
 from signpose.io.camera_file import load_camera, write_camera_info
+from signpose.io.groundtruth import read_ground_truth
 from signpose.io.messages import camera_from_message, image_from_message, message_stamp_ns
 from signpose.io.observations import read_observations, write_observations
 from signpose.io.tum import read_tum, write_tum
@@ -265,3 +267,14 @@ def test_malformed_raw_images_are_reasons_not_exceptions(change, reason):
     msg = {**_raw(np.zeros((6, 8), np.uint8), "mono8"), **change}
     image, why = image_from_message("sensor_msgs/msg/Image", msg)
     assert image is None and reason in why
+
+
+def test_a_ground_truth_time_given_twice_is_refused(tmp_path):
+    p = tmp_path / "gt.tum"
+    p.write_text("0.0 0 0 0 0 0 0 1\n0.1 1 0 0 0 0 0 1\n0.1 2 0 0 0 0 0 1\n")
+    with pytest.raises(
+        InputError, match=r"gt.tum: 1 time\(s\) given twice \(first: 0.100000000 s\)"
+    ):
+        read_ground_truth(p)
+    p.write_text("0.0 0 0 0 0 0 0 1\n0.1 1 0 0 0 0 0 1\n")
+    assert len(read_ground_truth(p).stamps_s) == 2

@@ -22,8 +22,20 @@ GT_MIN_TIME_OVERLAP = 0.5
 
 
 def read_ground_truth(path: str | Path, offset_s: float = 0.0) -> Trajectory:
-    """The ground truth TUM file with ``offset_s`` [s] added to its stamps (``--gt-offset``)."""
+    """The ground truth TUM file with ``offset_s`` [s] added to its stamps (``--gt-offset``).
+
+    Two poses at one time are refused (InputError): the comparison would take
+    either one for the frame at that time.
+    """
     gt = read_tum(path)
+    order = np.argsort(gt.stamps_s, kind="stable")
+    same = np.flatnonzero(np.diff(gt.stamps_s[order]) == 0.0)
+    if len(same):
+        t = gt.stamps_s[order[same[0]]]
+        raise InputError(
+            f"{path}: {len(same)} time(s) given twice (first: {t:.9f} s); "
+            "each ground-truth pose needs its own time: remove the repeated lines"
+        )
     if offset_s == 0.0:
         return gt
     return Trajectory(gt.stamps_s + float(offset_s), gt.world_t_cam, gt.quat_xyzw)
