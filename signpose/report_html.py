@@ -205,7 +205,7 @@ def _status_section(report: Mapping) -> list[str]:
         shares = c.get("status") or {}
         counts = [c.get("frames"), c.get("posed"), _pct(c.get("coverage")), c.get("bridged")]
         rows.append([method, *counts, *(_pct(shares.get(t, 0.0)) for t in tokens)])
-    out.append(table(["method", "frames", "posed", "coverage", "bridged", *tokens], rows))
+    out.append(table(["method", "frames", "posed", "coverage", "bridged frames", *tokens], rows))
     for method, c in coverage.items():
         if c.get("weak"):
             out.append(f"<details><summary>{html.escape(method)}: weak poses</summary>\n")

@@ -308,7 +308,7 @@ def check_anchor(sign_map: SignMap, telemetry: Telemetry) -> None:
         raise InputError(
             f"{sign_map.source or 'the map'}: the map has no 'origin' (its WGS84 anchor) to put "
             f"the GNSS fixes of {telemetry.source} in its frame; add origin: {{lat_deg: .., "
-            "lon_deg: .., height_m: ..}} (maps/SCHEMA.md)"
+            "lon_deg: .., height_m: ..} (maps/SCHEMA.md)"
         )
 
 
