@@ -185,7 +185,17 @@ def refine_map(
         .world_T_cam
         for frames in flights
     ]
-    return _solve_flights(flights, poses, sign_map, camera, s)
+    try:
+        return _solve_flights(flights, poses, sign_map, camera, s)
+    except RuntimeError as e:
+        if "ndetermina" not in str(e):  # gtsam's IndeterminantLinearSystemException
+            raise
+        raise InputError(
+            f"{sign_map.source or 'the map'}: the {len(flights)} flight(s) do not constrain "
+            "the sign positions (the joint solve is indeterminate): too few of their "
+            "observations agree with the map; check the survey (a sign far from where the "
+            "map puts it, two codes swapped) and the camera file"
+        ) from None
 
 
 def refine_flight(

@@ -4,11 +4,14 @@ import json
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from conftest import estimator_scene
+from signpose.estimator import refine
 from signpose.estimator.refine import refine_map
 from signpose.maps.loader import load_map, write_map
 
 from signpose.cli import main
+from signpose.core.errors import InputError
 from signpose.io.camera_file import write_camera_info
 from signpose.io.observations import write_observations
 
@@ -94,3 +97,16 @@ def test_estimate_writes_a_refined_map_that_moves_a_shifted_sign_back(tmp_path):
         assert sign.sigma_m == by_code[sign.code]["sigma_m"] < 0.01
         assert by_code[sign.code]["frames_seen"] == 40
         np.testing.assert_allclose(sign.normal, true.normal, atol=1e-6)
+
+
+def test_flights_that_do_not_constrain_the_signs_are_refused_in_one_line(monkeypatch):
+    # gtsam's indeterminate system (the smoother rejected most observations: a sign
+    # far off its survey) was an internal error, exit 1; it is the user's input
+    sign_map, camera, flights = _flights()
+
+    def indeterminate(*args, **kwargs):
+        raise RuntimeError("Indeterminant linear system detected while working near variable 118")
+
+    monkeypatch.setattr(refine, "_solve_flights", indeterminate)
+    with pytest.raises(InputError, match="do not constrain the sign positions"):
+        refine_map(flights, sign_map, camera)
