@@ -58,8 +58,8 @@ from signpose.estimator.smoother import (
     batch_covariances,
     collect_measurements,
     default_pose,
-    residuals_px,
     smooth_batch,
+    whitened_chi2,
 )
 from signpose.estimator.status import PoseStatus, StatusSettings, classify
 from signpose.estimator.telemetry import GimbalAngles, ImuSamples, Telemetry
@@ -878,10 +878,11 @@ def vision_solve(
 
 
 def _inliers(meas, vision: SmootherResult, camera: CameraModel, s: FusionSettings):
-    """The measurements the vision solution keeps (whitened residual within Tukey's k)."""
+    """The measurements the vision solution keeps (residual whitened per axis, as the
+    factors whiten it, within Tukey's k)."""
     if len(meas.frame) == 0:
         return meas
-    res = residuals_px(meas, vision, camera) / meas.sigma_px
+    res = np.sqrt(whitened_chi2(meas, vision, camera))
     return meas.subset(res <= s.smoother.tukey_k)
 
 

@@ -8,10 +8,17 @@ import pytest
 from conftest import estimator_scene
 from signpose.estimator.camera import pinhole_camera
 from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
+from signpose.estimator.fusion import FusionSettings, _inliers, vision_solve
 from signpose.estimator.perframe import solve_frame_pnp
 from signpose.estimator.projection import pixels_and_pose_jacobian, pose_fit
-from signpose.estimator.smoother import collect_measurements
+from signpose.estimator.smoother import (
+    SmootherSettings,
+    collect_measurements,
+    default_pose,
+    whitened_chi2,
+)
 from signpose.estimator.status import PoseStatus
+from signpose.estimator.tuning import _held_out_score
 
 
 def _scene(rng, n_signs=6, per_sign=4):
@@ -141,3 +148,38 @@ def test_smoother_takes_per_axis_sigmas_and_the_baseline_writes_none():
     assert np.all(np.isfinite(r.methods["pnp"].sigma_xyz[r.methods["pnp"].valid]))
     s = r.methods["smoothed"].sigma_xyz
     assert np.all(np.isfinite(s)) and np.all(s > 0)
+
+
+def _offset_along_u(frames, frame, offset_px, sigma_uv):
+    """``frames`` with frame ``frame``'s first sign's centre ``offset_px`` off along u,
+    claiming ``sigma_uv``; every other keypoint 0.2 px on both axes."""
+    f = frames[frame]
+    bad = f.signs[0]
+    moved_px = tuple(np.add(bad.keypoints_px["center"], (offset_px, 0.0)))
+    moved = replace(bad, keypoints_px={**bad.keypoints_px, "center": moved_px})
+    out = list(frames)
+    out[frame] = replace(f, signs=(moved, *f.signs[1:]))
+    return _with_keypoint_sigmas(
+        out, lambda o, n: sigma_uv if o is moved and n == "center" else (0.2, 0.2)
+    )
+
+
+def test_fusion_inliers_and_held_out_score_whiten_per_axis():
+    # A centre 4 px off along u that says sigma_u = 2 px (sigma_v 0.2): 2 sigma per
+    # axis, but 6.3 of its geometric-mean sigma (0.63 px), beyond Tukey's 4.685.
+    sign_map, camera, frames, gt, _ = estimator_scene(n_frames=8, sigma_px=0.0, seed=2, flat=False)
+    frames = _offset_along_u(frames, 4, 4.0, (2.0, 0.2))
+    meas = collect_measurements(frames, sign_map, camera)
+    moved = np.nonzero((meas.frame == 4) & (meas.sigma_uv_px[:, 0] == 2.0))[0]
+    assert len(moved) == 1
+    vision = vision_solve(frames, sign_map, camera, gt.stamps_s, SmootherSettings())
+    assert whitened_chi2(meas, vision, camera)[moved[0]] < 4.685**2
+    kept = _inliers(meas, vision, camera, FusionSettings())
+    assert len(kept.frame) == len(meas.frame)
+    # the held-out score of that centre alone, its frame posed by its other keypoints:
+    # about 2^2 per axis (25, the cap, at its geometric-mean sigma)
+    held = np.arange(len(meas.frame)) == moved[0]
+    init = list(vision.world_T_cam)
+    s = SmootherSettings()
+    score = _held_out_score(meas, held, gt.stamps_s, init, camera, s, default_pose(sign_map), 25.0)
+    assert 2.0 < score < 8.0
