@@ -506,6 +506,9 @@ class _Reading:
         black, white: the disc's and the location square's gray levels.
         spread: interquartile spread of the disc's black samples, as a
             fraction of white - black (noise, JPEG, dirt, glare).
+        glow: (coefficients, floor [gray], contrast [gray]) of the smooth
+            glow taken off the face before reading (``_without_glow``), or
+            None when the plain gray levels were read.
     """
 
     code: str | None
@@ -514,6 +517,7 @@ class _Reading:
     black: float
     white: float
     spread: float = 0.0
+    glow: tuple | None = None
 
 
 # Why the slot reading works on Python floats rather than numpy arrays: it
@@ -529,6 +533,119 @@ def _levels(vals: list[float]) -> tuple[float, float]:
     black = sorted(vals[_S_BLACK])[3]
     white = sorted(vals[_S_LOC])[len(vals[_S_LOC]) // 2]
     return black, white
+
+
+# Samples black whatever the code (between the slots, radially beside and
+# just outside every coded slot): the glow model is fitted to these.
+_BLACK_EVERYWHERE = np.array(
+    list(range(*_S_BLACK.indices(len(_SAMPLES))))
+    + list(range(*_S_AROUND.indices(len(_SAMPLES))))
+    + [i for s in _EDGE_STARTS for i in range(s, s + _N_EDGE)]
+)
+
+
+def _poly_design(xy: np.ndarray) -> np.ndarray:
+    """(N, 10) monomials of (N, 2) sign-plane points up to the third degree."""
+    x, y = xy[:, 0], xy[:, 1]
+    return np.stack([x**i * y ** (d - i) for d in range(4) for i in range(d + 1)], axis=1)
+
+
+_GLOW_DESIGN = _poly_design(_SAMPLES)
+# A glow is taken off only when it lifts the face by this much at its peak
+# (fraction of the contrast), its cubic fits every black-everywhere
+# sample this well, and at most this share of them are outliers.
+_GLOW_MIN = 0.1
+_GLOW_MAX_RESIDUAL = 0.16
+_GLOW_MAX_OUTLIERS = 0.1
+# Least ratio of the glow's two curvatures (both downward).
+_GLOW_ROUND = 0.3
+# Gray levels at or above this are saturated (the glow's true level unknown).
+_SATURATED = 250.0
+
+# Finite-difference step [diameters] of the glow's curvature at its peak.
+_HESSIAN_STEP = 0.02
+_HESSIAN_OFFSETS = _HESSIAN_STEP * np.array(
+    [[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1], [1, 1], [-1, -1], [1, -1], [-1, 1]], float
+)
+
+
+def _hessian(coef: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(2, 2) second derivatives of the polynomial ``coef`` at sign-plane point ``xy``."""
+    f = _poly_design(xy[None, :] + _HESSIAN_OFFSETS) @ coef
+    h2 = _HESSIAN_STEP**2
+    fxx = (f[1] + f[2] - 2 * f[0]) / h2
+    fyy = (f[3] + f[4] - 2 * f[0]) / h2
+    fxy = (f[5] + f[6] - f[7] - f[8]) / (4 * h2)
+    return np.array([[fxx, fxy], [fxy, fyy]])
+
+
+def _without_glow(vals: list[float]) -> tuple[list[float], np.ndarray, float] | None:
+    """The samples with a smooth glow on the face taken off, the glow's
+    coefficients (``_poly_design``) and its floor [gray], or None.
+
+    Specular glare adds a smooth glow over the face (it lifts the black
+    slots near its peak towards gray). A cubic in the sign plane is
+    fitted to the samples that are black whatever the code and subtracted
+    from every sample. None when there is no glow worth taking off, or when
+    the black samples do not follow one smooth surface, or it is not a round
+    bump at its peak (a bar lighter than the print is a straight band with
+    edges, flat along itself). A saturated
+    sample stays as it is where a black one could not have saturated under
+    the glow, and is made gray (erased) where it could.
+    """
+    v = np.asarray(vals, float)
+    a = _GLOW_DESIGN[_BLACK_EVERYWHERE]
+    b = v[_BLACK_EVERYWHERE]
+    keep = b < _SATURATED
+    if keep.sum() < 0.9 * len(b):
+        return None
+    coef = np.linalg.lstsq(a[keep], b[keep], rcond=None)[0]
+    resid = b - a @ coef
+    scale = max(1.4826 * float(np.median(np.abs(resid[keep]))), 1.0)
+    keep &= np.abs(resid) <= 3.0 * scale
+    coef = np.linalg.lstsq(a[keep], b[keep], rcond=None)[0]
+    fit_black = a @ coef
+    floor = float(fit_black.min())
+    white = float(np.median(v[_S_LOC]))
+    contrast = white - floor
+    if contrast <= 0:
+        return None
+    resid = (b - fit_black) / contrast
+    if (~keep).mean() > _GLOW_MAX_OUTLIERS or np.abs(resid).max() > _GLOW_MAX_RESIDUAL:
+        return None
+    glow = np.maximum(_GLOW_DESIGN @ coef - floor, 0.0)
+    if glow.max() < _GLOW_MIN * contrast:
+        return None
+    # A glow is a round bump (its curvature the same way in every direction,
+    # up to the view's foreshortening); a straight band is flat along itself.
+    curv = np.linalg.eigvalsh(_hessian(coef, _SAMPLES[int(np.argmax(glow))]))
+    if curv[1] >= 0 or curv[1] > _GLOW_ROUND * curv[0]:
+        return None
+    flat = v - glow
+    saturated = v >= _SATURATED
+    ambiguous = saturated & (floor + glow + 0.5 * contrast >= _SATURATED)
+    flat[saturated] = v[saturated]
+    flat[ambiguous] = floor + 0.5 * contrast
+    return flat.tolist(), coef, floor
+
+
+def _flattened(gray: np.ndarray, image_H_sign: np.ndarray, glow: tuple) -> np.ndarray:
+    """(H, W) uint8 ``gray`` with the face's glow (``_Reading.glow``) taken off
+    inside the disc, saturated pixels treated as in ``_without_glow``."""
+    coef, floor, contrast = glow
+    h, w = gray.shape
+    _, sign_H_image = cv2.invert(image_H_sign)
+    vv, uu = np.mgrid[0:h, 0:w]
+    uv = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(float)
+    xy = _project(sign_H_image, uv)
+    on_face = np.hypot(xy[:, 0], xy[:, 1]) < 0.5
+    v = gray.reshape(-1).astype(float)
+    glow_px = np.where(on_face, np.maximum(_poly_design(xy) @ coef - floor, 0.0), 0.0)
+    flat = v - glow_px
+    saturated = v >= _SATURATED
+    flat[saturated] = v[saturated]
+    flat[saturated & (floor + glow_px + 0.5 * contrast >= _SATURATED)] = floor + 0.5 * contrast
+    return np.clip(np.round(flat), 0, 255).astype(np.uint8).reshape(h, w)
 
 
 def _face_is_sign_like(frac: list[float], hidden: frozenset[int] = frozenset()) -> bool:
@@ -616,8 +733,33 @@ def _read_slots(gray: np.ndarray, image_H_sign: np.ndarray, settings: DecoderSet
     slot position 0 (where the contours put it), with a clear margin. Each
     coded slot must be clearly one thing: a half-white slot (dirt, a cable,
     heavy blur, a wrong geometry) is refused rather than guessed.
+
+    A reading that fails or erases a slot is tried again on the samples with
+    a smooth glow taken off (``_without_glow``: specular glare lifts the
+    black slots near it to gray); the second reading is kept only when it
+    erases fewer slots and agrees with the first on every slot both read.
     """
     vals = _sample(gray, _project(image_H_sign, _SAMPLES))
+    first = _classify_slots(gray, image_H_sign, vals, settings)
+    if first.code is not None and "x" not in first.code:
+        return first
+    glow = _without_glow(vals)
+    if glow is None:
+        return first
+    second = _classify_slots(gray, image_H_sign, glow[0], settings)
+    if second.code is None:
+        return first
+    if first.code is not None and not (
+        second.code.count("x") < first.code.count("x") and _consistent(first.code, second.code)
+    ):
+        return first
+    return replace(second, glow=(glow[1], glow[2], second.white - second.black))
+
+
+def _classify_slots(
+    gray: np.ndarray, image_H_sign: np.ndarray, vals: list[float], settings: DecoderSettings
+) -> _Reading:
+    """``_read_slots`` on the gray levels ``vals`` of ``_SAMPLES``."""
     black, white = _levels(vals)
     contrast = white - black
     if contrast < settings.min_contrast:
@@ -1487,6 +1629,25 @@ def _occlusion(
     return _Occlusion("".join(pattern), frozenset(covered), disturbance)
 
 
+def _erased_under_plain_bands(
+    region: _Region, image_H_sign: np.ndarray, reading: _Reading
+) -> _Reading:
+    """``reading`` (read with a glow taken off) with every black-read slot that
+    a band of the plain gray levels crosses erased: a bar lighter than the
+    print over a black slot lifts it as a glow would, but it is a straight
+    band that the plain image's evidence sees."""
+    bands = _occluder_bands(
+        region.gray,
+        image_H_sign,
+        reading,
+        region.rim_contour is not None,
+        region.settings.search_bars,
+    )
+    hits = occlusion.crossed(bands, _PART_CENTRES, np.full(len(_PART_CENTRES), _ERASE_REACH))
+    code = "".join("x" if b == "0" and hits[1 + k] else b for k, b in enumerate(reading.code))
+    return replace(reading, code=code)
+
+
 def _accept_code(
     region: _Region, image_H_sign: np.ndarray, reading: _Reading, scale_px: float
 ) -> tuple[str | None, _Occlusion | None, DecodeReason]:
@@ -1546,7 +1707,13 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
     contour_code = "".join("1" if s in slots else "0" for s in range(1, N_BITS + 1))
     if not _consistent(reading.code, contour_code):
         return _fail(DecodeReason.INCONSISTENT, quality=reading.margin)
-    code, occ, reason = _accept_code(region, image_H_sign, reading, major_px)
+    # The occlusion evidence reads the face with the glow taken off too, and
+    # a black-read slot under a band of the plain image stays erased.
+    seen = region
+    if reading.glow is not None:
+        seen = replace(region, gray=_flattened(g, image_H_sign, reading.glow))
+        reading = _erased_under_plain_bands(region, image_H_sign, reading)
+    code, occ, reason = _accept_code(seen, image_H_sign, reading, major_px)
     if code is None:
         return _fail(reason, quality=reading.margin)
     erased = tuple(k for k in range(1, N_BITS + 1) if occ.pattern[k - 1] == "x")

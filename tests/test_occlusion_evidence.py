@@ -270,3 +270,45 @@ def test_a_print_black_bar_seen_beyond_one_rim_crossing_is_found_by_the_line_sea
     assert res.code is None and res.reason == DecodeReason.OCCLUDED
     monkeypatch.setattr(occlusion, "straight_bars", lambda *a, **k: [])
     assert decode_roi(crop.image, PAPER_CODES, search).code == "1000"
+
+
+def test_a_glow_over_the_face_is_taken_off_before_the_slots_are_read(scene, monkeypatch):
+    """1010 under a specular glow that lifts its black slots near the peak to
+    gray: with the smooth glow taken off (``decoder._without_glow``) it reads
+    1010; read on the plain gray levels it was refused."""
+    crop = _scene_crop(
+        scene,
+        "1010",
+        0,
+        sign_px=70.0,
+        rotation_deg=30.0,
+        tilt_deg=20.0,
+        tilt_axis_deg=40.0,
+        focal_px=1000.0,
+        photo="camera",
+        black_level=35.0,
+        white_level=215.0,
+        glare=110.0,
+        psf_sigma_px=0.5,
+        noise_sigma=2.0,
+        jpeg_quality=88,
+    )
+    res = decode_roi(crop.image, PAPER_CODES)
+    assert res.code == "1010" and res.erased_slots == ()
+    for name, uv in crop.keypoints_px.items():
+        assert np.hypot(*np.subtract(res.keypoints_px[name], uv)) < 1.0, name
+    monkeypatch.setattr(decoder, "_without_glow", lambda vals: None)
+    assert decode_roi(crop.image, PAPER_CODES).code is None
+
+
+@pytest.mark.parametrize("bar_frac", [0.06, 0.2, 0.35, 0.5])
+def test_a_bar_lighter_than_the_print_over_a_black_slot_is_not_taken_for_a_glow(bar_frac):
+    """A member lighter than the print over black slot 2 of 1010 lifts that
+    slot as a glow would, but it is a straight band: the slot stays erased
+    (refused where 1110 fits too, decoded with slot 2 erased where the map
+    leaves 1010 alone), never read 0 through the glow model."""
+    image = _bar_lighter_than_the_print("1010", 2, bar_frac)
+    res = decode_roi(image, PAPER_CODES)
+    assert res.code is None and res.reason == DecodeReason.OCCLUDED
+    unique = decode_roi(image, ["1010", "0101", "0011"])
+    assert unique.code == "1010" and unique.erased_slots == (2,)
