@@ -208,14 +208,17 @@ class DetectorSettings:
         track_scale_factor: window growth between sizes when tracking.
         track_decode_predicted: a predicted sign that neither verifies nor
             is found by the tracked search is decoded in full on its
-            predicted box (moved by the verified signs' offset), and kept
-            when the decoder reads the predicted code there. On
-            scripts/eval_flight.py's quick flights (a real lens, JPEG,
-            vibration) every unhidden sign a run missed although the
-            decoder reads it on its true box had been predicted, and the
-            cascade fired on none of them, in the tracked region nor in the
-            full-frame search that followed; the decoder read 22 of those
-            27 on the predicted box.
+            predicted box (moved by the offset of the nearest sign found;
+            ``retry_thresholds``), and kept when the decoder reads the
+            predicted code there. On scripts/eval_flight.py's quick flights
+            (a real lens, JPEG, vibration) every unhidden sign a run missed
+            although the decoder reads it on its true box (27) had been
+            predicted, and the cascade fired on none of them, in the tracked
+            region nor in the full-frame search that followed; with this,
+            2 are missed (their predictions more than 0.4 diameters off
+            after the offset). It costs a decode per sign left unverified
+            and unfound in a tracked frame: bench_frontend's hard flight
+            (members across the signs) about 5 ms per tracked frame.
         track_min_found_frac: tracking searches the full frame when it finds
             fewer than this fraction of the predicted signs (with ``refresh``:
             when it misses any).
