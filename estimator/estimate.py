@@ -666,7 +666,8 @@ def _final_solve(
         return r, []
     smoother = replace(p.s.smoother, kernel=kernel)
     kept = p.meas.subset(active)
-    r = smooth_batch(kept, p.stamps, list(r.world_T_cam), p.camera, smoother, p.default)
+    init, landmarks = list(r.world_T_cam), r.landmarks_world  # Tukey needs both (see smooth_batch)
+    r = smooth_batch(kept, p.stamps, init, p.camera, smoother, p.default, landmarks)
     ids = np.nonzero(active)[0]
     chi2 = whitened_chi2(kept, r, p.camera)
     if kernel == GNC:
