@@ -637,17 +637,23 @@ def _without_glow(vals: list[float]) -> tuple[list[float], np.ndarray, float] | 
     curv = np.linalg.eigvalsh(_hessian(coef, _SAMPLES[int(np.argmax(glow))]))
     if curv[1] >= 0 or curv[1] > _GLOW_ROUND * curv[0]:
         return None
+    return _glow_off(v, glow, floor, contrast).tolist(), coef, floor
+
+
+def _glow_off(v: np.ndarray, glow: np.ndarray, floor: float, contrast: float) -> np.ndarray:
+    """Gray values ``v`` with ``glow`` taken off (``_without_glow``'s fit, above its
+    ``floor``): a saturated value stays as it is where a black one under that glow
+    could not have saturated, and is made mid-gray (erased) where it could."""
     flat = v - glow
     saturated = v >= _SATURATED
-    ambiguous = saturated & (floor + glow + 0.5 * contrast >= _SATURATED)
     flat[saturated] = v[saturated]
-    flat[ambiguous] = floor + 0.5 * contrast
-    return flat.tolist(), coef, floor
+    flat[saturated & (floor + glow + 0.5 * contrast >= _SATURATED)] = floor + 0.5 * contrast
+    return flat
 
 
 def _flattened(gray: np.ndarray, image_H_sign: np.ndarray, glow: tuple) -> np.ndarray:
     """(H, W) uint8 ``gray`` with the face's glow (``_Reading.glow``) taken off
-    inside the disc, saturated pixels treated as in ``_without_glow``."""
+    inside the disc (``_glow_off``)."""
     coef, floor, contrast = glow
     h, w = gray.shape
     _, sign_H_image = cv2.invert(image_H_sign)
@@ -657,10 +663,7 @@ def _flattened(gray: np.ndarray, image_H_sign: np.ndarray, glow: tuple) -> np.nd
     on_face = np.hypot(xy[:, 0], xy[:, 1]) < 0.5
     v = gray.reshape(-1).astype(float)
     glow_px = np.where(on_face, np.maximum(_poly_design(xy) @ coef - floor, 0.0), 0.0)
-    flat = v - glow_px
-    saturated = v >= _SATURATED
-    flat[saturated] = v[saturated]
-    flat[saturated & (floor + glow_px + 0.5 * contrast >= _SATURATED)] = floor + 0.5 * contrast
+    flat = _glow_off(v, glow_px, floor, contrast)
     return np.clip(np.round(flat), 0, 255).astype(np.uint8).reshape(h, w)
 
 

@@ -963,8 +963,9 @@ class SignDetector:
         refused: list[Refusal] = []
         res = self._finish(gray, raw, codes, "track", timing, t0, retry=False, refused=refused)
         t2 = time.perf_counter()
+        tried: set[tuple[float, float, float, float]] = set()  # boxes decoded at predictions
         verified += self._read_at_predictions(
-            gray, predictions, verified + list(res.detections), codes, refused
+            gray, predictions, verified + list(res.detections), codes, refused, tried
         )
         timing["decode"] += timing["verify"] + (time.perf_counter() - t2) * 1e3
         res = replace(
@@ -978,7 +979,7 @@ class SignDetector:
         full = self._search(gray, codes, "fast", refused)
         t3 = time.perf_counter()
         verified += self._read_at_predictions(
-            gray, predictions, verified + list(full.detections), codes, refused
+            gray, predictions, verified + list(full.detections), codes, refused, tried
         )
         full.timing["decode"] += (time.perf_counter() - t3) * 1e3
         # Every stage of both searches (the verification's time kept too).
@@ -1053,6 +1054,7 @@ class SignDetector:
         found: Sequence[SignObservation],
         codes: tuple[str, ...] | None,
         refused: Sequence[Refusal] = (),
+        tried: set[tuple[float, float, float, float]] | None = None,
     ) -> list[SignObservation]:
         """The predicted signs the tracked search did not find, decoded in full on
         their predicted boxes (``track_decode_predicted``).
@@ -1069,6 +1071,9 @@ class SignDetector:
         would be a second guess at the same verdict): on bench_frontend's
         hard flight (20 frames) 38 of the 70 boxes tried, one read, and on
         eval_flight's quick flights 2 of the 55 that read.
+        A box in ``tried`` is not decoded again (a frame that falls back to the
+        full-frame search reads its predictions twice: the box, crop and
+        settings the same, so is the verdict); each box read is added.
         """
         if not self.settings.decode or not self.settings.track_decode_predicted:
             return []
@@ -1090,6 +1095,10 @@ class SignDetector:
                 for (x, y, bw, bh), why in refused
             ):
                 continue
+            if tried is not None:  # a box read before gives the same verdict again
+                if box in tried:
+                    continue
+                tried.add(box)
             res = decode_region(gray, box, codes, self._predicted_settings)
             if res.ok and res.code == p.code:
                 # No cascade window vouches for it: scored as a verified sign is.
