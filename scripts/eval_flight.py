@@ -45,14 +45,17 @@ The default set (4 flights of 240 frames at 1280x720 and one of 150 at
 1920x1080) took 12 min wall, 4.3 min CPU, on the shared 2-core machine at
 load 9 (about 5 min unloaded); ``--surveys 3 --oracle --drop-lens-model`` add
 as much again; ``--quick`` (2 flights of 60 frames) 40 s CPU. Flights and runs
-are kept in ``--work`` and reused when their commands are unchanged
-(``--rerun`` redoes them). Every flight prints the commands that reproduce it.
+are kept in ``--work`` and reused when their commands (and, for runs,
+signpose's source files) are unchanged (``--rerun`` redoes them). Every
+flight prints the commands that reproduce it.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import functools
+import hashlib
 import json
 import math
 import subprocess
@@ -229,9 +232,23 @@ def prepare(spec: FlightSpec, work: Path, rerun: bool) -> tuple[Path, list[str],
     return flight, argv, run_argv(flight, given, d / "out")
 
 
+@functools.cache
+def code_digest() -> str:
+    """sha256 of signpose's own source files: a cached run made by other code is run again."""
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for sub in ("signpose", "frontend", "estimator", "maps"):
+        for path in sorted((root / sub).rglob("*")):
+            if path.suffix in (".py", ".yaml", ".xml", ".json") and path.is_file():
+                digest.update(str(path.relative_to(root)).encode())
+                digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def run_signpose(argv: list[str], stamp: Path, rerun: bool) -> dict:
-    """Run ``signpose`` (unless it finished with these arguments); exit code and stderr."""
-    if not rerun and _stamped(stamp, argv) and stamp.with_suffix(".log").is_file():
+    """Run ``signpose`` unless it finished with these arguments and this code: exit, stderr."""
+    key = [*argv, f"code:{code_digest()}"]
+    if not rerun and _stamped(stamp, key) and stamp.with_suffix(".log").is_file():
         return json.loads(stamp.with_suffix(".log").read_text())
     exe = Path(sys.executable).with_name("signpose")
     proc = subprocess.run([str(exe), *argv], capture_output=True, text=True)
@@ -239,7 +256,7 @@ def run_signpose(argv: list[str], stamp: Path, rerun: bool) -> dict:
     with atomic_write(stamp.with_suffix(".log")) as f:
         json.dump(result, f)
     with atomic_write(stamp) as f:
-        json.dump(argv, f)
+        json.dump(key, f)
     return result
 
 
