@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from signpose.core.fileio import atomic_path
-from signpose.estimator.metrics import rotation_errors_deg
+from signpose.estimator.metrics import ground_truth_at, rotation_errors_deg
 from signpose.estimator.status import PoseStatus
 from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import SignMap
@@ -285,24 +285,15 @@ def _mark_statuses(data: PlotData, top, side, axes_t) -> None:
     side.set_title(f"side view; {name} poses by status")
 
 
-def _associate(traj: Trajectory, gt: Trajectory, tol_s: float = 1e-3) -> tuple:
-    """Indices (i_est, i_gt) of stamps that match within ``tol_s``."""
-    j = np.searchsorted(gt.stamps_s, traj.stamps_s)
-    j = np.clip(j, 1, len(gt) - 1) if len(gt) > 1 else np.zeros_like(j)
-    if len(gt) > 1:
-        left_closer = np.abs(gt.stamps_s[j - 1] - traj.stamps_s) < np.abs(
-            gt.stamps_s[j] - traj.stamps_s
-        )
-        j = np.where(left_closer, j - 1, j)
-    ok = np.abs(gt.stamps_s[j] - traj.stamps_s) <= tol_s
-    return np.nonzero(ok)[0], j[ok]
-
-
 def pose_errors(traj: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(stamps [s], position error [m], rotation error [deg]) at the stamps both have."""
-    i, j = _associate(traj, gt)
-    dp = np.linalg.norm(traj.world_t_cam[i] - gt.world_t_cam[j], axis=1)
-    dr = rotation_errors_deg(traj.world_R_cam()[i], gt.world_R_cam()[j])
+    """(stamps [s], position error [m], rotation error [deg]) where the ground truth is known.
+
+    The ground truth at the trajectory's stamps as the metrics take it
+    (``estimator.metrics.ground_truth_at``: interpolated across short gaps).
+    """
+    i, gt_T = ground_truth_at(gt, traj.stamps_s)
+    dp = np.linalg.norm(traj.world_t_cam[i] - gt_T[:, :3, 3], axis=1)
+    dr = rotation_errors_deg(traj.world_R_cam()[i], gt_T[:, :3, :3])
     return traj.stamps_s[i], dp, dr
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from signpose.core.errors import InputError
-from signpose.estimator.metrics import associate
+from signpose.estimator.metrics import ground_truth_at
 from signpose.estimator.trajectory import Trajectory
 from signpose.io.tum import read_tum
 
@@ -57,7 +57,7 @@ def check_time_overlap(
     if len(e) == 0 or len(g) == 0:
         return
     e0, e1, g0, g1 = float(e.min()), float(e.max()), float(g.min()), float(g.max())
-    shared = len(associate(e, g)[0])
+    shared = len(ground_truth_at(gt, e)[0])
     covered = max(0.0, min(e1, g1) - max(e0, g0))
     share = covered / (e1 - e0) if e1 > e0 else float(g0 <= e0 <= g1)
     if shared > 0 and share >= GT_MIN_TIME_OVERLAP:

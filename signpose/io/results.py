@@ -371,7 +371,9 @@ def compare_dir(
     trajs = {name: read_tum(p) for name, p in method_files(out_dir, gt_path).items()}
     stamps_s = np.concatenate([t.stamps_s for t in trajs.values()])
     check_time_overlap(stamps_s, f"{out_dir} ({', '.join(trajs)})", gt, gt_path)
-    metrics = {name: compute_metrics(t, gt) for name, t in trajs.items()}
+    metrics = {
+        name: compute_metrics(t, gt, reference_stamps_s=stamps_s) for name, t in trajs.items()
+    }
     out = {name: m.to_dict() for name, m in metrics.items()}
     report_path = Path(out_dir) / "report.json"
     report = read_report(report_path) if report_path.exists() else {}
