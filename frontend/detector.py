@@ -715,7 +715,13 @@ class SignDetector:
         """
         s = self.settings
         sub = low[::4, ::4]
-        frame_thr = float(np.percentile(sub, 0.5)) + s.fast_dark_margin
+        p_dark, median = (float(v) for v in np.percentile(sub, (0.5, 50.0)))
+        # A frame whose darkest 0.5 % is its own background (a plain sky behind
+        # a sign smaller than 0.5 % of it) would mark the background dark and
+        # join the disc to it: never above the frame's median less the margin,
+        # unless that is below its darkest pixel plus the margin (a dark frame).
+        cap = max(median - s.fast_dark_margin, float(low.min()) + s.fast_dark_margin)
+        frame_thr = min(p_dark + s.fast_dark_margin, cap)
         nx, ny = s.fast_local_tiles
         dark_mass = float(np.mean(sub <= frame_thr)) > s.fast_dark_mass_share
         if not dark_mass or nx <= 0 or ny <= 0:

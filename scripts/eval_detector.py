@@ -261,11 +261,14 @@ def score(detections, truth: dict, table: dict, readable: set[str]) -> None:
 
 
 def condition_flights(
-    photo_flights: int, hard_flights: int, frames: int, seed: int
+    photo_flights: int, hard_flights: int, frames: int, seed: int, plain_flights: int = 0
 ) -> list[tuple[str, str, SimSettings]]:
     """(folder, label, settings) of the photo flights (two procedural ones first,
-    as the reference) and the hard flights (``SimSettings.hard()``: every
-    real-pylon condition at once), all climb-hover-depart at 28 m.
+    as the reference), the hard flights (``SimSettings.hard()``: every
+    real-pylon condition at once) and the plain flights (``background=False``:
+    a flat grey behind the signs, an overcast sky, where a sign's black is
+    the only dark thing in the frame, from 45 m), all climb-hover-depart at
+    28 m but the plain ones.
 
     The label names the condition; "" = the frame's background.
     """
@@ -279,6 +282,10 @@ def condition_flights(
             flights.append((f"photo{k}", "", settings))
     for k in range(hard_flights):
         flights.append((f"hard{k}", "hard", replace(base, seed=seed + 200 + k).hard()))
+    for k in range(plain_flights):
+        # From 45 m the ten signs (about 30 px) are under 0.5 % of the frame.
+        plain = replace(base, seed=seed + 300 + k, background=False, distance_m=45.0)
+        flights.append((f"plain{k}", "plain sky", plain))
     return flights
 
 
@@ -378,7 +385,13 @@ def main(argv: list[str] | None = None) -> int:
         help="flights with every real-pylon condition (SimSettings.hard()) (default 0)",
     )
     ap.add_argument(
-        "--photo-frames", type=int, default=10, help="frames per photo (and hard) flight"
+        "--plain-flights",
+        type=int,
+        default=0,
+        help="flights with a flat grey behind the signs (an overcast sky) (default 0)",
+    )
+    ap.add_argument(
+        "--photo-frames", type=int, default=10, help="frames per photo (hard, plain) flight"
     )
     ap.add_argument(
         "--no-retries",
@@ -413,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         flights = condition_flights(
-            args.photo_flights, args.hard_flights, args.photo_frames, args.seed
+            args.photo_flights, args.hard_flights, args.photo_frames, args.seed, args.plain_flights
         )
         if flights:
             backgrounds, photo_causes = _background_tables(
