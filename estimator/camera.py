@@ -1,5 +1,8 @@
 """Camera model: intrinsics, lens distortion, projection and undistortion.
 
+The undistortion's Jacobian (``undistort_px_jacobian``) carries a raw-pixel
+keypoint sigma into the undistorted image (``undistorted_sigmas``).
+
 Camera frame: OpenCV's and gtsam's, x right, y down, z forward (optical axis).
 Pixels: u right, v down, pixel centres at integer coordinates.
 
@@ -165,6 +168,59 @@ def undistort_px(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-9)
         out = cv2.undistortPointsIter(pts, K0, camera.dist, None, camera.K, crit)
     return out.reshape(-1, 2)
+
+
+def undistort_px_jacobian(
+    camera: CameraModel, pixels: np.ndarray
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Raw pixels undistorted (``undistort_px``) and the lens's Jacobian there.
+
+    ``J = d(undistorted pixel) / d(raw pixel)`` per point: a keypoint's
+    covariance in the undistorted image is ``J Sigma_raw J^T``. It is the
+    inverse of the projection's Jacobian at the undistorted point, which is
+    closed-form for both lens models (no iteration): ``d raw / d x_n`` by
+    central differences of ``pixel_from_cam_point`` at ``x_n = K^-1 q``, and
+    ``J = K_2 (d raw / d x_n)^-1`` with ``K_2`` the upper 2 x 2 of K (skew
+    included, as ``undistort_px`` keeps it).
+
+    Args:
+        pixels: (N, 2) raw pixel coordinates.
+
+    Returns:
+        ((N, 2) undistorted pixels, (N, 2, 2) Jacobians), the Jacobians None
+        for a camera without distortion (the identity: nothing to carry).
+    """
+    und = undistort_px(camera, pixels)
+    if not camera.has_distortion or len(und) == 0:
+        return und, None
+    K2 = np.asarray(camera.K, float)[:2, :2]
+    xy = np.linalg.solve(K2, (und - camera.K[:2, 2]).T).T  # normalised, z = 1
+    h = 1e-6  # in normalised coordinates: ~1e-3 px at f = 1000 px
+    n = len(xy)
+    pts = np.ones((4, n, 3))
+    pts[:, :, :2] = xy
+    pts[0, :, 0] += h
+    pts[1, :, 0] -= h
+    pts[2, :, 1] += h
+    pts[3, :, 1] -= h
+    raw = pixel_from_cam_point(camera, pts.reshape(-1, 3)).reshape(4, n, 2)
+    D = np.empty((n, 2, 2))  # d raw / d (x_n, y_n)
+    D[:, :, 0] = (raw[0] - raw[1]) / (2 * h)
+    D[:, :, 1] = (raw[2] - raw[3]) / (2 * h)
+    return und, K2 @ np.linalg.inv(D)
+
+
+def undistorted_sigmas(jac: np.ndarray | None, sigma_uv: np.ndarray) -> np.ndarray:
+    """(N, 2) per-axis sigmas [px] of raw-pixel sigmas carried into the undistorted image.
+
+    ``sqrt(diag(J diag(sigma_u^2, sigma_v^2) J^T))``: each axis's marginal
+    sigma (the off-diagonal covariance is left out: the estimator weighs
+    keypoints per axis). ``jac`` None (no distortion): ``sigma_uv`` itself.
+    """
+    s = np.asarray(sigma_uv, dtype=float).reshape(-1, 2)
+    if jac is None:
+        return s
+    return np.sqrt(np.einsum("nij,nj->ni", jac**2, s**2))
 
 
 # --------------------------------------------------------------------------- files

@@ -20,7 +20,12 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
-from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.estimator.camera import (
+    CameraModel,
+    undistort_px,
+    undistort_px_jacobian,
+    undistorted_sigmas,
+)
 from signpose.estimator.fusion import (
     FusionResult,
     FusionSettings,
@@ -527,11 +532,15 @@ def _outliers(
         for i, si in {(int(meas.frame[m]), int(meas.sign_index[m])) for m in down}
         if frames[i].signs[si].code in centres
     )
-    # Every suspect's centre undistorted in one call.
+    # Every suspect's centre undistorted in one call, its raw-pixel sigma with it.
     raw = np.array([frames[i].signs[si].center_px for i, si in suspects], dtype=float)
-    centre_uv = undistort_px(camera, raw.reshape(-1, 2))
+    centre_uv, jac = undistort_px_jacobian(camera, raw.reshape(-1, 2))
+    sig = np.array([frames[i].signs[si].sigma_px for i, si in suspects], dtype=float)
+    if jac is not None:  # the geometric mean of the axes' sigmas, as sigma_px is
+        sig_uv = undistorted_sigmas(jac, np.repeat(sig.reshape(-1, 1), 2, axis=1))
+        sig = np.sqrt(sig_uv[:, 0] * sig_uv[:, 1])
     mis = []
-    for (i, si), uv in zip(suspects, centre_uv, strict=True):
+    for (i, si), uv, sigma in zip(suspects, centre_uv, sig, strict=True):
         obs = frames[i].signs[si]
         T = np.repeat(r.world_T_cam[i][None], len(codes), axis=0)
         d = np.linalg.norm(project(camera, T, C) - uv, axis=1)
@@ -539,7 +548,7 @@ def _outliers(
         d_other = d.copy()
         d_other[codes.index(obs.code)] = np.inf
         best = int(np.argmin(d_other))
-        if d_other[best] * settings.misdecode_ratio < own and d_other[best] < 3 * k * obs.sigma_px:
+        if d_other[best] * settings.misdecode_ratio < own and d_other[best] < 3 * k * sigma:
             mis.append(
                 Misdecode(int(frames[i].frame), obs.code, codes[best], float(own), float(d[best]))
             )

@@ -5,7 +5,10 @@ return a ``FramePose`` with ``world_T_cam=None`` and a reason instead.
 
 Conventions: ``world_T_cam`` is (4, 4), the camera axes are OpenCV's
 (x right, y down, z forward); pixels are undistorted with
-``estimator.camera.undistort_px`` before any pose math.
+``estimator.camera.undistort_px`` before any pose math, and the decoder's
+raw-pixel sigmas carried with them through the lens's Jacobian
+(``camera.undistort_px_jacobian``): a barrel lens or a fisheye stretches the
+image's edges, and a keypoint there is less certain in undistorted pixels.
 """
 
 from __future__ import annotations
@@ -19,7 +22,11 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
-from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.estimator.camera import (
+    CameraModel,
+    undistort_px_jacobian,
+    undistorted_sigmas,
+)
 from signpose.estimator.projection import PoseFit, pixels_and_pose_jacobian, pose_fit
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
@@ -130,7 +137,7 @@ class _Correspondences:
     names: list[str]
     world: np.ndarray  # (N, 3)
     px: np.ndarray  # (N, 2) undistorted pixels (skew-free, see _correspondences)
-    sigma_px: np.ndarray  # (N, 2) pixel sigma of each point per image axis (u, v)
+    sigma_px: np.ndarray  # (N, 2) undistorted-pixel sigma of each point per image axis (u, v)
     sigma_m: np.ndarray  # (N,) survey sigma of each point [m]
 
     def fit(
@@ -218,7 +225,9 @@ def _correspondences(
                 sig_px.append(keypoint_sigmas(obs, name))
                 sig_m.append(sign.sigma_m)
     world_a = np.asarray(world, dtype=float).reshape(-1, 3)
-    px = undistort_px(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
+    # The decoder's sigmas are in raw pixels: carried through the lens's
+    # Jacobian into the undistorted image the pose math works in.
+    px, jac = undistort_px_jacobian(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
     # The solvers here read only fx, fy, cx, cy (as cv2.solvePnP does): take the
     # skew term K[0, 1] * y off, so that px is the skew-free pinhole image.
     if camera.K[0, 1] != 0.0:
@@ -228,7 +237,7 @@ def _correspondences(
         names,
         world_a,
         px,
-        np.asarray(sig_px, float).reshape(-1, 2),
+        undistorted_sigmas(jac, np.asarray(sig_px, float).reshape(-1, 2)),
         np.asarray(sig_m, float),
     )
 

@@ -10,7 +10,9 @@ Factor graph:
       keypoint with its own prior, or the survey as exact;
     * a ``GenericProjectionFactorCal3_S2`` per observed keypoint on undistorted
       pixels, noise ``Robust(kernel, Diagonal(sigma_u, sigma_v))`` (the
-      decoder's per-keypoint, per-axis sigmas, else the sign's) with a Huber
+      decoder's per-keypoint, per-axis sigmas, else the sign's, given in raw
+      pixels and carried through the lens's Jacobian into the undistorted
+      image: ``camera.undistorted_sigmas``) with a Huber
       (default), Tukey or no kernel (GNC weighs plain Gaussian factors);
     * a motion prior between consecutive frames scaled by their time step dt:
       ``random-walk``: ``BetweenFactorPose3`` to the identity with sigmas
@@ -42,7 +44,11 @@ from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
-from signpose.estimator.camera import CameraModel, undistort_px
+from signpose.estimator.camera import (
+    CameraModel,
+    undistort_px_jacobian,
+    undistorted_sigmas,
+)
 from signpose.estimator.marginals import Conditional, selected_covariances
 from signpose.estimator.perframe import keypoint_sigmas
 from signpose.estimator.projection import pixel_from_normalised
@@ -259,13 +265,16 @@ class Measurements:
         frame: (M,) frame position (0..N-1) of each measurement.
         landmark: (M,) landmark index of each measurement.
         px: (M, 2) undistorted pixels.
-        sigma_px: (M,) pixel sigma, one per keypoint (the geometric mean of
-            its two axes' sigmas, as the decoder's ``sigma_px`` is of a sign's).
+        sigma_px: (M,) undistorted-pixel sigma, one per keypoint (the
+            geometric mean of its two axes' ``sigma_uv_px``, as the decoder's
+            ``sigma_px`` is of a sign's).
         sign_index: (M,) index of the observation in its frame's ``signs``.
         n_frames: N.
         sigma_uv_px: (M, 2) pixel sigma per image axis (u, v): the decoder's
-            ``keypoint_sigma_px``, else its ``sigma_px`` on both; None: ``sigma_px``
-            on both axes.
+            ``keypoint_sigma_px``, else its ``sigma_px`` on both (raw pixels),
+            carried into the undistorted image by the lens's Jacobian there
+            (``sqrt(diag(J Sigma J^T))``, ``camera.undistorted_sigmas``);
+            None: ``sigma_px`` on both axes.
     """
 
     landmark_code: tuple[str, ...]
@@ -324,8 +333,9 @@ def collect_measurements(
                 raw.append(uv)
                 sp.append(keypoint_sigmas(obs, name))
                 si.append(k)
-    px = undistort_px(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
-    sigma_uv = np.asarray(sp, dtype=float).reshape(-1, 2)
+    # The decoder's sigmas are raw pixels': carried through the lens's Jacobian.
+    px, jac = undistort_px_jacobian(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
+    sigma_uv = undistorted_sigmas(jac, np.asarray(sp, dtype=float).reshape(-1, 2))
     return Measurements(
         tuple(codes),
         tuple(names),
