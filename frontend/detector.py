@@ -635,9 +635,13 @@ class SignDetector:
                 # (65 degree view); conductors and lattice bars are long and thin.
                 if area < 0.3 * bw * bh or max(bw, bh) > 3 * min(bw, bh) or max(bw, bh) < 3:
                     continue
-                # Its white parts (or the background) are bright next to the black.
+                # Its white parts (or the background) are bright next to the
+                # black: its own black (its dark pixels' median), not the
+                # threshold, which a backlit or dim frame puts far above it.
                 dark_thr = float(thr[by + bh // 2, bx + bw // 2])
-                if int(high[by : by + bh, bx : bx + bw].max()) - dark_thr < s.fast_min_range:
+                box = (slice(by, by + bh), slice(bx, bx + bw))
+                black = min(dark_thr, float(np.median(low[box][dark[box] > 0])))
+                if int(high[box].max()) - black < s.fast_min_range:
                     continue
                 self._add_roi(rois, (bx, by, bw, bh), (h, w))
         if s.fast_grey_discs and dark_mass:

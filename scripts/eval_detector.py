@@ -267,8 +267,8 @@ def condition_flights(
     as the reference), the hard flights (``SimSettings.hard()``: every
     real-pylon condition at once) and the plain flights (``background=False``:
     a flat grey behind the signs, an overcast sky, where a sign's black is
-    the only dark thing in the frame, from 45 m), all climb-hover-depart at
-    28 m but the plain ones.
+    the only dark thing in the frame, from 45 m; each also seen dim and
+    backlit, ``EXPOSURES``), all climb-hover-depart at 28 m but the plain ones.
 
     The label names the condition; "" = the frame's background.
     """
@@ -285,8 +285,19 @@ def condition_flights(
     for k in range(plain_flights):
         # From 45 m the ten signs (about 30 px) are under 0.5 % of the frame.
         plain = replace(base, seed=seed + 300 + k, background=False, distance_m=45.0)
-        flights.append((f"plain{k}", "plain sky", plain))
+        for label in ("plain sky", *EXPOSURES):
+            flights.append((f"plain{k}{label[len('plain sky') :].replace(' ', '_')}", label, plain))
     return flights
+
+
+# The plain flights' frames seen through a wrong exposure (the simulator's flat
+# grey is 134): the auto-exposure of a camera facing a bright sky.
+EXPOSURES = {
+    # Dim: a third of the light; the signs' white parts at about 85.
+    "plain sky, dim": lambda g: np.round(g * (1 / 3)).astype(np.uint8),
+    # Backlit: the sky saturates (134 -> 255) and the faces are lifted with it.
+    "plain sky, backlit": lambda g: np.clip(np.round(g * 1.6 + 50), 0, 255).astype(np.uint8),
+}
 
 
 def _background_tables(
@@ -306,6 +317,7 @@ def _background_tables(
         frames = settings.frames
         simulate(sign_map, out, settings, progress=False)
         for gray, truth in _frames(out, frames):
+            gray = EXPOSURES[label](gray) if label in EXPOSURES else gray
             background = label or truth.get("conditions", {}).get("background", "procedural")
             readable = decodable(gray, truth)
             for mode in modes:
