@@ -34,7 +34,11 @@ also runs the slow reference verification of tests/test_verify_fast.py on
 every timed crop and counts those whose outcome or reading differs.
 
     .venv/bin/python scripts/bench_frontend.py [--quick] [--frames N] [--repeat R] [--json PATH]
-        [--check-verify] [--profile {fast,track}]
+        [--check-verify] [--profile {fast,track}] [--appearance]
+
+``--appearance`` measures the premise of reusing a verification's checks while a
+tracked sign looks unchanged (``_appearance``): how much a verified sign's disc
+changes from one frame to the next, against the image noise.
 """
 
 from __future__ import annotations
@@ -230,6 +234,117 @@ def _crop_times(scene, codes, check=None, other=None) -> dict:
     return out | _ab_medians(ab)
 
 
+# The smoothing of --appearance [px], and the white noise's gain through it (1 / (2 sqrt(pi) s)).
+APPEARANCE_BLUR_PX = 1.0
+APPEARANCE_NOISE_GAIN = 1.0 / (2.0 * math.sqrt(math.pi) * APPEARANCE_BLUR_PX)
+
+
+def _appearance(scene, codes) -> dict:
+    """How much a verified sign's appearance changes from one frame to the next.
+
+    The premise of reusing a verification's checks while a tracked sign looks
+    unchanged (issue 14): for every sign verified (at the prediction, moved as
+    in ``_crop_times``) in two consecutive frames, the earlier frame's pixels
+    warped onto the later frame's refit homography (through the sign plane),
+    compared over the disc less its outer pixel (the background's parallax
+    stays out): the largest absolute difference as a fraction of the contrast
+    (the disc's 97th less its 3rd percentile of gray), raw and with both
+    images smoothed over the disc by a ``APPEARANCE_BLUR_PX`` Gaussian
+    (a normalised convolution); and the share of pairs whose largest
+    difference is within 5 noise sigmas of a difference of two images
+    (``sigma_inputs.noise`` times the contrast, times sqrt(2), and times
+    ``APPEARANCE_NOISE_GAIN`` when smoothed), i.e. that a test for a change
+    larger than the noise at any pixel would call unchanged. ``scale_3pct``:
+    the share of pairs whose major axis changed by at most 3 %.
+    """
+    prev: dict[str, tuple] = {}
+    raw, smooth, within_raw, within_smooth, scale_ok = [], [], [], [], []
+    for i, f in enumerate(scene["frames"]):
+        truth = scene["boxes"][i]
+        by_code = {s["code"]: s for s in truth["signs"] if s["diameter_px"] >= MIN_SIGN_PX}
+        preds = [p for p in scene["preds"][i] if p.image_H_sign is not None and p.code in by_code]
+        cur: dict[str, tuple] = {}
+        if preds:
+            du, dv = np.median(
+                [np.subtract(by_code[p.code]["center_px"], p.center_px) for p in preds], 0
+            )
+            shift = np.array([[1.0, 0, du], [0, 1.0, dv], [0, 0, 1.0]])
+            for p in preds:
+                v = verify_sign(f, shift @ p.image_H_sign, p.code, codes)
+                if v.ok and v.result.sigma_inputs is not None:
+                    r = v.result
+                    cur[p.code] = (f, r.image_H_sign, r.ellipse[1][0], r.sigma_inputs.noise)
+        for code, (g1, h1, major1, _) in cur.items():
+            if code not in prev:
+                continue
+            g0, h0, major0, noise0 = prev[code]
+            change = _appearance_change(g0, h0, g1, h1, major1)
+            if change is None:
+                continue
+            (d_raw, d_smooth), contrast = change
+            noise = max(noise0 * contrast, 1.0) * math.sqrt(2.0)
+            raw.append(d_raw / contrast)
+            smooth.append(d_smooth / contrast)
+            within_raw.append(d_raw <= 5.0 * noise)
+            within_smooth.append(d_smooth <= 5.0 * noise * APPEARANCE_NOISE_GAIN)
+            scale_ok.append(abs(major1 / major0 - 1.0) <= 0.03)
+        prev = cur
+    if not raw:
+        return {"pairs": 0}
+    q = lambda x, p: float(np.percentile(x, p))  # noqa: E731
+    return {
+        "pairs": len(raw),
+        "raw_p50": q(raw, 50),
+        "raw_p90": q(raw, 90),
+        "smooth_p10": q(smooth, 10),
+        "smooth_p50": q(smooth, 50),
+        "smooth_p90": q(smooth, 90),
+        "within_5_noise_raw": float(np.mean(within_raw)),
+        "within_5_noise_smooth": float(np.mean(within_smooth)),
+        "scale_3pct": float(np.mean(scale_ok)),
+    }
+
+
+def _appearance_change(g0, h0, g1, h1, major1):
+    """((raw, smoothed) largest |difference| [gray levels], contrast), or None (see
+    ``_appearance``): frame 0's disc warped onto frame 1's."""
+    rim = np.stack([np.cos(np.linspace(0, 2 * np.pi, 48)), np.sin(np.linspace(0, 2 * np.pi, 48))])
+    inner = (0.5 - 1.0 / max(major1, 1e-9)) * rim.T
+    rim1 = cv2.perspectiveTransform(inner[None].astype(np.float64), h1)[0]
+    x0, y0 = np.floor(rim1.min(axis=0)).astype(int) - 2
+    x1, y1 = np.ceil(rim1.max(axis=0)).astype(int) + 3
+    if x0 < 0 or y0 < 0 or x1 > g1.shape[1] or y1 > g1.shape[0]:
+        return None
+    size = (int(x1 - x0), int(y1 - y0))
+    to_crop = np.array([[1.0, 0, x0], [0, 1.0, y0], [0, 0, 1.0]])
+    g0_from_crop = h0 @ np.linalg.inv(h1) @ to_crop
+    before = cv2.warpPerspective(
+        g0.astype(np.float32),
+        g0_from_crop,
+        size,
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
+    after = g1[y0:y1, x0:x1].astype(np.float32)
+    mask = np.zeros((size[1], size[0]), np.uint8)
+    cv2.fillPoly(mask, [np.round((rim1 - (x0, y0)) * 16).astype(np.int32)], 1, shift=4)
+    inside = mask.astype(bool)
+    if inside.sum() < 20:
+        return None
+    m = mask.astype(np.float32)
+    weight = np.maximum(cv2.GaussianBlur(m, (0, 0), APPEARANCE_BLUR_PX), 1e-3)
+
+    def smoothed(img):
+        return cv2.GaussianBlur(img * m, (0, 0), APPEARANCE_BLUR_PX) / weight
+
+    contrast = float(np.percentile(before[inside], 97) - np.percentile(before[inside], 3))
+    if contrast <= 0:
+        return None
+    d_raw = float(np.abs(after - before)[inside].max())
+    d_smooth = float(np.abs(smoothed(after) - smoothed(before))[inside].max())
+    return (d_raw, d_smooth), contrast
+
+
 def _ab(ab: dict, this, other, passes: int = 3) -> None:
     """Append the CPU [ms] of ``this`` and ``other`` on one crop to ``ab``: each the
     least of ``passes`` runs, the two run one after the other in alternating order."""
@@ -407,6 +522,16 @@ def _print_scene(name: str, res: dict, n: int) -> None:
         print(f"  verifications differing from the reference: {c['check_differ']} of {c['crops']}")
     if "ab_ratio" in c:
         print(_ab_line(c))
+    a = res.get("appearance")
+    if a is not None and a["pairs"]:
+        print(
+            f"  appearance, {a['pairs']} signs verified in consecutive frames: largest change"
+            f" over the disc / contrast raw median {a['raw_p50']:.3f} (p90 {a['raw_p90']:.3f}),"
+            f" smoothed {APPEARANCE_BLUR_PX:g} px p10 / median / p90 {a['smooth_p10']:.3f} /"
+            f" {a['smooth_p50']:.3f} / {a['smooth_p90']:.3f}; within 5 noise sigmas: raw"
+            f" {a['within_5_noise_raw']:.1%}, smoothed {a['within_5_noise_smooth']:.1%};"
+            f" scale within 3 %: {a['scale_3pct']:.1%}"
+        )
 
 
 def _ab_line(c: dict) -> str:
@@ -444,6 +569,12 @@ def main(argv: list[str] | None = None) -> int:
         help="after the timing, profile one more pass of this mode (cProfile top lines)",
     )
     ap.add_argument("--profile-top", type=int, default=25, help="lines per --profile table")
+    ap.add_argument(
+        "--appearance",
+        action="store_true",
+        help="also measure how much each verified sign's appearance changes between"
+        " consecutive frames (the premise of reusing a verification's checks)",
+    )
     args = ap.parse_args(argv)
     check = _reference_check() if args.check_verify else None
     other = _load_verify(args.ab_verify) if args.ab_verify else None
@@ -470,6 +601,8 @@ def main(argv: list[str] | None = None) -> int:
         for t in res["found"].values():
             for k in ("found", "found_ge18", "wrong", "full_frames", "signs"):
                 t.setdefault(k, 0)
+        if args.appearance:
+            res["appearance"] = _appearance(scene, codes)
         results["scenes"][name] = res
         _print_scene(name, res, n)
         if args.profile:
