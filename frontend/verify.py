@@ -56,6 +56,23 @@ fill and side measures), so the copy was stale before its equality test
 ever passed; it was neither kept nor timed. Batching the own
 steps over a frame's signs would change what each starts from: each
 verification starts at the offset of the nearest sign already verified.
+
+Tried and dropped (issue 14): reusing, per track, the checks and part
+measures of the frame where every check last ran while the sign looks
+unchanged (its disc warped through the sign plane onto this frame's refit,
+no pixel departing by more than 5 noise sigmas plus 0.2 px times the local
+gradient; the detector keeping a reference per code, dropped at ``detect``).
+A tracked sign does not look the same from frame to frame: motion blur and
+the resampling's phase move its edges by tens of gray levels.
+``scripts/bench_frontend.py --frames 40 --repeat 1 --appearance``: the
+largest change over the disc is a quarter of the contrast at the median
+(0.247 sim, 0.249 hard), 0.085 / 0.081 with both images smoothed by a 1 px
+Gaussian, and no pair of consecutive frames (338 sim, 205 hard) is within 5
+noise sigmas either way. With the reuse (not committed), ``bench_frontend
+--frames 40`` reused 14 of 357 verifications (sim) and 10 of 220 (hard), and tracking
+cost more (sim 0.91x -> 1.05x ArUco: the references' upkeep). A test loose
+enough to reuse half the verifications would pass changes of a tenth of the
+contrast after smoothing, what a thin conductor across a white part leaves.
 """
 
 from __future__ import annotations
