@@ -170,10 +170,17 @@ def undistort_px(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
     return out.reshape(-1, 2)
 
 
+# A raw pixel whose undistorted point projects back further than this is one
+# the lens model does not describe (a fisheye's ray at 90 deg or more, which no
+# pinhole image holds; a polynomial that folds beyond its calibrated radius, where
+# the iteration finds no inverse): the converged points miss by < 1e-9 px.
+MAX_ROUND_TRIP_PX = 0.01
+
+
 def undistort_px_jacobian(
     camera: CameraModel, pixels: np.ndarray
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Raw pixels undistorted (``undistort_px``) and the lens's Jacobian there.
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Raw pixels undistorted (``undistort_px``), the lens's Jacobian there, and where valid.
 
     ``J = d(undistorted pixel) / d(raw pixel)`` per point: a keypoint's
     covariance in the undistorted image is ``J Sigma_raw J^T``. It is the
@@ -183,31 +190,49 @@ def undistort_px_jacobian(
     ``J = K_2 (d raw / d x_n)^-1`` with ``K_2`` the upper 2 x 2 of K (skew
     included, as ``undistort_px`` keeps it).
 
+    A point is valid when its undistorted point projects back onto it (within
+    ``MAX_ROUND_TRIP_PX``) and the projection does not fold there (its
+    Jacobian's determinant > 0); elsewhere the undistorted pixel is not the
+    keypoint's and must not be used (its J is the identity, a placeholder).
+
     Args:
         pixels: (N, 2) raw pixel coordinates.
 
     Returns:
-        ((N, 2) undistorted pixels, (N, 2, 2) Jacobians), the Jacobians None
-        for a camera without distortion (the identity: nothing to carry).
+        ((N, 2) undistorted pixels, (N, 2, 2) Jacobians, (N,) valid); the
+        Jacobians and validity None for a camera without distortion (the
+        identity, every point valid: nothing to carry).
     """
     und = undistort_px(camera, pixels)
     if not camera.has_distortion or len(und) == 0:
-        return und, None
+        return und, None, None
     K2 = np.asarray(camera.K, float)[:2, :2]
     xy = np.linalg.solve(K2, (und - camera.K[:2, 2]).T).T  # normalised, z = 1
-    h = 1e-6  # in normalised coordinates: ~1e-3 px at f = 1000 px
     n = len(xy)
-    pts = np.ones((4, n, 3))
+    h = 1e-6 * np.maximum(1.0, np.abs(xy))  # (N, 2); ~1e-3 px at f = 1000 px
+    pts = np.ones((5, n, 3))
     pts[:, :, :2] = xy
-    pts[0, :, 0] += h
-    pts[1, :, 0] -= h
-    pts[2, :, 1] += h
-    pts[3, :, 1] -= h
-    raw = pixel_from_cam_point(camera, pts.reshape(-1, 3)).reshape(4, n, 2)
-    D = np.empty((n, 2, 2))  # d raw / d (x_n, y_n)
-    D[:, :, 0] = (raw[0] - raw[1]) / (2 * h)
-    D[:, :, 1] = (raw[2] - raw[3]) / (2 * h)
-    return und, K2 @ np.linalg.inv(D)
+    pts[1, :, 0] += h[:, 0]
+    pts[2, :, 0] -= h[:, 0]
+    pts[3, :, 1] += h[:, 1]
+    pts[4, :, 1] -= h[:, 1]
+    with np.errstate(invalid="ignore", over="ignore"):
+        raw = pixel_from_cam_point(camera, pts.reshape(-1, 3)).reshape(5, n, 2)
+        D = np.empty((n, 2, 2))  # d raw / d (x_n, y_n)
+        D[:, :, 0] = (raw[1] - raw[2]) / (2 * h[:, :1])
+        D[:, :, 1] = (raw[3] - raw[4]) / (2 * h[:, 1:])
+        det = D[:, 0, 0] * D[:, 1, 1] - D[:, 0, 1] * D[:, 1, 0]
+        miss = np.linalg.norm(raw[0] - np.asarray(pixels, float).reshape(-1, 2), axis=1)
+    valid = np.isfinite(det) & (det > 0) & (miss <= MAX_ROUND_TRIP_PX)
+    valid &= np.all(np.isfinite(D.reshape(n, 4)), axis=1)
+    D[~valid] = np.eye(2)
+    det = np.where(valid, det, 1.0)
+    inv = np.empty_like(D)
+    inv[:, 0, 0], inv[:, 1, 1] = D[:, 1, 1] / det, D[:, 0, 0] / det
+    inv[:, 0, 1], inv[:, 1, 0] = -D[:, 0, 1] / det, -D[:, 1, 0] / det
+    J = K2 @ inv
+    J[~valid] = np.eye(2)
+    return und, J, valid
 
 
 def undistorted_sigmas(jac: np.ndarray | None, sigma_uv: np.ndarray) -> np.ndarray:

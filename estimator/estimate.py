@@ -22,7 +22,6 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from signpose.estimator.camera import (
     CameraModel,
-    undistort_px,
     undistort_px_jacobian,
     undistorted_sigmas,
 )
@@ -456,9 +455,12 @@ def _sign_fit(
         uv, _, _ = pixels_and_pose_jacobian(camera, T, np.array([kps[n] for n in names]))
         depth = max(float(cam_points(T, sign.center_m[None])[0, 2]), MIN_DEPTH_M)
         diameter_px = sign.diameter_m * camera.fx / depth
-        d = np.linalg.norm(undistort_px(camera, raw) - uv, axis=1) / diameter_px
-        for n, dk in zip(names, d, strict=True):
-            (centre_d if n == "center" else other_d).append(float(dk))
+        und, _, valid = undistort_px_jacobian(camera, raw)
+        d = np.linalg.norm(und - uv, axis=1) / diameter_px
+        valid = np.ones(len(d), bool) if valid is None else valid
+        for n, dk, ok in zip(names, d, valid, strict=True):
+            if ok:  # a keypoint the lens model cannot undistort tells nothing
+                (centre_d if n == "center" else other_d).append(float(dk))
     return float(np.mean(behind)), _median(centre_d), _median(other_d)
 
 
@@ -534,13 +536,16 @@ def _outliers(
     )
     # Every suspect's centre undistorted in one call, its raw-pixel sigma with it.
     raw = np.array([frames[i].signs[si].center_px for i, si in suspects], dtype=float)
-    centre_uv, jac = undistort_px_jacobian(camera, raw.reshape(-1, 2))
+    centre_uv, jac, valid = undistort_px_jacobian(camera, raw.reshape(-1, 2))
     sig = np.array([frames[i].signs[si].sigma_px for i, si in suspects], dtype=float)
     if jac is not None:  # the geometric mean of the axes' sigmas, as sigma_px is
         sig_uv = undistorted_sigmas(jac, np.repeat(sig.reshape(-1, 1), 2, axis=1))
         sig = np.sqrt(sig_uv[:, 0] * sig_uv[:, 1])
+    valid = np.ones(len(suspects), bool) if valid is None else valid
     mis = []
-    for (i, si), uv, sigma in zip(suspects, centre_uv, sig, strict=True):
+    for (i, si), uv, sigma, ok in zip(suspects, centre_uv, sig, valid, strict=True):
+        if not ok:  # a centre the lens model cannot undistort tells nothing
+            continue
         obs = frames[i].signs[si]
         T = np.repeat(r.world_T_cam[i][None], len(codes), axis=0)
         d = np.linalg.norm(project(camera, T, C) - uv, axis=1)

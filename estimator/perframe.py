@@ -208,7 +208,8 @@ def keypoint_sigmas(obs, name: str) -> tuple[float, float]:
 def _correspondences(
     frame: FrameObservations, sign_map: SignMap, camera: CameraModel, all_keypoints: bool
 ) -> _Correspondences:
-    """Undistorted image points matched to map points; codes absent from the map dropped."""
+    """Undistorted image points matched to map points; codes absent from the map dropped,
+    and keypoints where the lens model holds no inverse (``undistort_px_jacobian``)."""
     codes, names, world, raw, sig_px, sig_m = [], [], [], [], [], []
     for obs in frame.signs:
         sign = sign_map.sign(obs.code)
@@ -227,19 +228,18 @@ def _correspondences(
     world_a = np.asarray(world, dtype=float).reshape(-1, 3)
     # The decoder's sigmas are in raw pixels: carried through the lens's
     # Jacobian into the undistorted image the pose math works in.
-    px, jac = undistort_px_jacobian(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
+    px, jac, valid = undistort_px_jacobian(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
+    sigma_px = undistorted_sigmas(jac, np.asarray(sig_px, float).reshape(-1, 2))
+    sigma_m = np.asarray(sig_m, float)
+    if valid is not None and not np.all(valid):  # where the lens model holds no inverse
+        keep = np.nonzero(valid)[0].tolist()
+        codes, names = [codes[k] for k in keep], [names[k] for k in keep]
+        world_a, px, sigma_px, sigma_m = (a[valid] for a in (world_a, px, sigma_px, sigma_m))
     # The solvers here read only fx, fy, cx, cy (as cv2.solvePnP does): take the
     # skew term K[0, 1] * y off, so that px is the skew-free pinhole image.
     if camera.K[0, 1] != 0.0:
         px[:, 0] -= camera.K[0, 1] * (px[:, 1] - camera.cy) / camera.fy
-    return _Correspondences(
-        codes,
-        names,
-        world_a,
-        px,
-        undistorted_sigmas(jac, np.asarray(sig_px, float).reshape(-1, 2)),
-        np.asarray(sig_m, float),
-    )
+    return _Correspondences(codes, names, world_a, px, sigma_px, sigma_m)
 
 
 def _spread(points: np.ndarray) -> np.ndarray:

@@ -333,19 +333,23 @@ def collect_measurements(
                 raw.append(uv)
                 sp.append(keypoint_sigmas(obs, name))
                 si.append(k)
-    # The decoder's sigmas are raw pixels': carried through the lens's Jacobian.
-    px, jac = undistort_px_jacobian(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
+    # The decoder's sigmas are raw pixels': carried through the lens's Jacobian;
+    # a keypoint where the lens model holds no inverse is dropped (not guessed).
+    px, jac, valid = undistort_px_jacobian(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
     sigma_uv = undistorted_sigmas(jac, np.asarray(sp, dtype=float).reshape(-1, 2))
+    fr_a, lm_a, si_a = (np.asarray(a, dtype=np.int64) for a in (fr, lm, si))
+    if valid is not None and not np.all(valid):
+        px, sigma_uv, fr_a, lm_a, si_a = (a[valid] for a in (px, sigma_uv, fr_a, lm_a, si_a))
     return Measurements(
         tuple(codes),
         tuple(names),
         np.asarray(world, dtype=float).reshape(-1, 3),
         np.asarray(sig, dtype=float),
-        np.asarray(fr, dtype=np.int64),
-        np.asarray(lm, dtype=np.int64),
+        fr_a,
+        lm_a,
         px,
         np.sqrt(sigma_uv[:, 0] * sigma_uv[:, 1]),
-        np.asarray(si, dtype=np.int64),
+        si_a,
         len(frames),
         sigma_uv,
     )

@@ -48,8 +48,8 @@ def _grid(n: int = 9) -> np.ndarray:
 @pytest.mark.parametrize("camera", [BARREL, FISHEYE], ids=["plumb_bob", "equidistant"])
 def test_the_jacobian_is_the_undistortions_derivative(camera):
     px = _grid()
-    und, J = undistort_px_jacobian(camera, px)
-    assert np.array_equal(und, undistort_px(camera, px))
+    und, J, valid = undistort_px_jacobian(camera, px)
+    assert np.array_equal(und, undistort_px(camera, px)) and np.all(valid)
     h = 0.05
     num = np.empty_like(J)
     for a, step in enumerate(([h, 0.0], [0.0, h])):
@@ -62,8 +62,8 @@ def test_the_jacobian_is_the_undistortions_derivative(camera):
 def test_no_distortion_carries_nothing():
     cam = pinhole_camera(W, H, 90.0)
     px = _grid()
-    und, J = undistort_px_jacobian(cam, px)
-    assert J is None and np.array_equal(und, px)
+    und, J, valid = undistort_px_jacobian(cam, px)
+    assert J is None and valid is None and np.array_equal(und, px)
     s = np.full((len(px), 2), 0.3)
     assert undistorted_sigmas(None, s) is not None and np.array_equal(undistorted_sigmas(J, s), s)
 
@@ -82,7 +82,7 @@ def test_an_edge_keypoints_sigma_grows_by_the_lens_stretch():
     sig = meas.axis_sigmas()
     names = [meas.landmark_name[j] for j in meas.landmark]
     at_edge, at_centre = sig[names.index("direction")], sig[names.index("center")]
-    _, J = undistort_px_jacobian(BARREL, np.array([edge]))
+    _, J, _ = undistort_px_jacobian(BARREL, np.array([edge]))
     want = np.sqrt(J[0] ** 2 @ np.array([0.2, 0.3]) ** 2)
     assert np.allclose(at_edge, want, rtol=1e-12)
     assert np.all(at_edge > 1.3 * np.array([0.2, 0.3]))  # ~1.38x at this edge
@@ -114,6 +114,31 @@ def test_pnp_chi2_is_about_one_through_a_strong_lens(camera, monkeypatch):
     assert 0.9 < median < 1.1 and scale < 1.05
     # the same keypoints with their raw-pixel sigmas taken as undistorted ones: biased
     real = perframe.undistort_px_jacobian
-    monkeypatch.setattr(perframe, "undistort_px_jacobian", lambda c, p: (real(c, p)[0], None))
+    monkeypatch.setattr(perframe, "undistort_px_jacobian", lambda c, p: (real(c, p)[0], None, None))
     raw_median, raw_scale = _pnp_chi2_per_dof(camera)
     assert raw_median > 1.12 and raw_scale > 1.05
+
+
+# A fisheye whose corners see rays beyond 90 deg (no pinhole image holds them),
+# and a polynomial that folds beyond its calibrated radius.
+WIDE_FISHEYE = replace(FISHEYE, K=np.array([[400.0, 0.0, 639.5], [0.0, 400.0, 359.5], [0, 0, 1]]))
+FOLDED = _camera("plumb_bob", [-0.5, 0.1, 0.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("camera", [WIDE_FISHEYE, FOLDED], ids=["beyond_90_deg", "folded"])
+def test_pixels_the_lens_model_cannot_undistort_are_dropped(camera):
+    px = _grid(17)
+    und, _, valid = undistort_px_jacobian(camera, px)
+    assert 0 < np.sum(~valid) < len(px) // 2 and valid[len(px) // 2]  # the centre holds
+    sign_map = load_map(bundled_map_path())
+    code = sign_map.signs[0].code
+    bad = px[np.nonzero(~valid)[0][0]]
+    kp = {"center": (camera.cx, camera.cy), "direction": tuple(bad)}
+    obs = SignObservation(code, kp, None, 0.1, 1.0)
+    meas = collect_measurements([FrameObservations(0, 0, (W, H), (obs,))], sign_map, camera)
+    assert [meas.landmark_name[j] for j in meas.landmark] == ["center"]
+    assert np.allclose(meas.px[0], (camera.cx, camera.cy))
+    c = perframe._correspondences(
+        FrameObservations(0, 0, (W, H), (obs,)), sign_map, camera, all_keypoints=True
+    )
+    assert c.names == ["center"] and len(c.px) == len(c.sigma_px) == len(c.world) == 1
