@@ -63,3 +63,17 @@ def test_a_plain_sky_alone_gives_no_sign(detector):
 def test_fast_mode_finds_a_sign_through_a_wrong_exposure(detector, sky, black, white, sd):
     img = _sky_with_sign(60, sky, black=black, white=white, sd=sd)
     assert [s.code for s in detector.detect(img, mode="fast").detections] == ["1011"]
+
+
+@pytest.mark.parametrize("size_px", [600, 800])
+def test_fast_mode_finds_a_sign_close_up(detector, size_px):
+    # Over half the frame's height: the paper's largest window is half the image.
+    img = np.clip(np.random.default_rng(2).normal(180.0, 4.0, (1080, 1920)), 0, 255)
+    face = cv2.resize(render_sign_png("0110", 512), (size_px, size_px), cv2.INTER_AREA)
+    yy, xx = np.mgrid[:size_px, :size_px] + 0.5
+    disc = (yy - size_px / 2) ** 2 + (xx - size_px / 2) ** 2 <= (size_px / 2) ** 2
+    y0, x0 = (1080 - size_px) // 2, 600
+    patch = img[y0 : y0 + size_px, x0 : x0 + size_px]
+    patch[disc] = face[disc]
+    found = detector.detect(img.astype(np.uint8), mode="fast").detections
+    assert [s.code for s in found] == ["0110"]
