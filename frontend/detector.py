@@ -306,7 +306,8 @@ class DetectionResult:
             places is reported twice, for the caller to settle.
         n_regions: merged regions the cascade found.
         n_undecoded: regions dropped because they did not decode.
-        timing: stage name -> milliseconds ("cascade", "merge", "decode", "total").
+        timing: stage name -> milliseconds ("cascade", "merge", "decode", "total";
+            "retry", the crop retries' part of "decode", when there were any).
         mode: how the frame was searched.
         fell_back: tracking lost a predicted sign and searched the full frame.
         regions: (n_regions, 4) merged regions (x, y, w, h) before decoding.
@@ -790,7 +791,7 @@ class SignDetector:
         regions, counts = self.merge(raw)
         t2 = time.perf_counter()
         timing["merge"] = timing.get("merge", 0.0) + (t2 - t1) * 1e3
-        dets, undecoded = self._decode(gray, regions, counts, codes, retry, refused)
+        dets, undecoded = self._decode(gray, regions, counts, codes, retry, refused, timing)
         t3 = time.perf_counter()
         timing["decode"] = timing.get("decode", 0.0) + (t3 - t2) * 1e3
         timing["total"] = (t3 - t0) * 1e3
@@ -806,9 +807,11 @@ class SignDetector:
         codes: Iterable[str] | None,
         retry: bool = True,
         refused: list[Refusal] | None = None,
+        timing: dict[str, float] | None = None,
     ) -> tuple[tuple[SignObservation, ...], int]:
         """(readings, one per sign; regions that did not read), with crop retries if
-        ``retry``; each region that did not read appended to ``refused`` with its reason."""
+        ``retry``; each region that did not read appended to ``refused`` with its reason;
+        the retries' time added to ``timing["retry"]`` [ms] (a part of the decoding's)."""
         codes = tuple(codes) if codes is not None else None
         if not self.settings.decode:
             raw = tuple(
@@ -824,8 +827,13 @@ class SignDetector:
             return raw, 0
         boxes = [(float(x), float(y), float(w), float(h)) for x, y, w, h in regions]
         results = [decode_region(gray, box, codes) for box in boxes]
-        if retry:
+        if retry and any(
+            self._retryable(r, b, n) for r, b, n in zip(results, boxes, counts, strict=True)
+        ):
+            t0 = time.perf_counter()
             results = self._retried(gray, boxes, counts, results, codes)
+            if timing is not None:
+                timing["retry"] = timing.get("retry", 0.0) + (time.perf_counter() - t0) * 1e3
         if refused is not None:
             refused += [
                 (box, res.reason) for box, res in zip(boxes, results, strict=True) if not res.ok

@@ -178,7 +178,7 @@ def _frame_modes(det, aruco, scene, sign_map, repeat):
                 if r or m == "aruco":
                     continue
                 _score(res.detections, scene["boxes"][i], tallies[m])
-                for part in ("cascade", "verify", "decode"):
+                for part in ("cascade", "verify", "decode", "retry"):
                     parts[m][part].append(res.timing.get(part, 0.0))
                 if m in trackers:
                     tallies[m]["full_frames"] += int(not plans[m].predictions or res.fell_back)
@@ -189,6 +189,7 @@ def _frame_modes(det, aruco, scene, sign_map, repeat):
     for m, t in tallies.items():
         for part, v in parts[m].items():
             t[f"{part}_ms_median"] = statistics.median(v)  # wall, pass 0
+            t[f"{part}_ms_mean"] = statistics.fmean(v)
     return per_frame, passes, tallies, outcomes
 
 
@@ -509,7 +510,8 @@ def _print_scene(name: str, res: dict, n: int) -> None:
         print(
             f"  {'':13s} wall medians: cascade {t['cascade_ms_median']:.1f} ms, verification"
             f" {t['verify_ms_median']:.1f} ms, decoder (verification included)"
-            f" {t['decode_ms_median']:.1f} ms"
+            f" {t['decode_ms_median']:.1f} ms, of it crop retries {t['retry_ms_median']:.1f} ms"
+            f" (mean {t['retry_ms_mean']:.1f})"
         )
     print(f"  verifications: {res['verifications']}")
     c = res["crops"]

@@ -193,3 +193,26 @@ def test_a_frame_retries_at_most_retry_max_regions_regions_the_strongest_first(m
     n_margins = len(s.retry_margins) + len(s.retry_small_margins)  # small regions: both
     # The three with most windows (9, 8, 7: regions 1, 5, 3), each with every margin.
     assert retried == [10.0] * n_margins + [50.0] * n_margins + [30.0] * n_margins
+
+
+def test_the_retries_time_is_reported_as_a_part_of_the_decoding():
+    """DetectionResult.timing["retry"]: the crop retries' ms, within "decode"."""
+    frame, box = _sign_frame()
+    det = SignDetector()
+    timing: dict[str, float] = {}
+    dets, _ = det._decode(frame, np.array([box]), np.array([40]), None, timing=timing)
+    assert [d.code for d in dets] == ["0101"]  # read by a retry (the default crop cuts the rim)
+    assert timing["retry"] > 0.0
+    res = det._finish(frame, np.array([box] * 40), None, "fast", {}, 0.0)  # 40 windows
+    assert [d.code for d in res.detections] == ["0101"]
+    assert 0.0 < res.timing["retry"] <= res.timing["decode"]
+    # A region the default crop reads is not retried: no retry time.
+    whole = (
+        100 - DIAMETER_PX * 0.75,
+        100 - DIAMETER_PX * 0.75,
+        1.5 * DIAMETER_PX,
+        1.5 * DIAMETER_PX,
+    )
+    timing = {}
+    dets, _ = det._decode(frame, np.array([whole]), np.array([40]), None, timing=timing)
+    assert [d.code for d in dets] == ["0101"] and timing.get("retry", 0.0) == 0.0
