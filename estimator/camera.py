@@ -1,7 +1,8 @@
 """Camera model: intrinsics, lens distortion, projection and undistortion.
 
 The undistortion's Jacobian (``undistort_px_jacobian``) carries a raw-pixel
-keypoint sigma into the undistorted image (``undistorted_sigmas``).
+keypoint sigma into the undistorted image (``undistorted_cov``: the lens
+stretches and correlates the axes; ``undistorted_sigmas``: the marginals).
 
 Camera frame: OpenCV's and gtsam's, x right, y down, z forward (optical axis).
 Pixels: u right, v down, pixel centres at integer coordinates.
@@ -235,12 +236,18 @@ def undistort_px_jacobian(
     return und, J, valid
 
 
+def undistorted_cov(jac: np.ndarray, sigma_uv: np.ndarray) -> np.ndarray:
+    """(N, 2, 2) covariances [px^2] in the undistorted image: ``J diag(su^2, sv^2) J^T``."""
+    s = np.asarray(sigma_uv, dtype=float).reshape(-1, 2)
+    return np.einsum("nia,na,nja->nij", jac, s**2, jac)
+
+
 def undistorted_sigmas(jac: np.ndarray | None, sigma_uv: np.ndarray) -> np.ndarray:
     """(N, 2) per-axis sigmas [px] of raw-pixel sigmas carried into the undistorted image.
 
     ``sqrt(diag(J diag(sigma_u^2, sigma_v^2) J^T))``: each axis's marginal
-    sigma (the off-diagonal covariance is left out: the estimator weighs
-    keypoints per axis). ``jac`` None (no distortion): ``sigma_uv`` itself.
+    sigma (``undistorted_cov`` keeps the correlation too). ``jac`` None (no
+    distortion): ``sigma_uv`` itself.
     """
     s = np.asarray(sigma_uv, dtype=float).reshape(-1, 2)
     if jac is None:

@@ -356,7 +356,7 @@ def _smoothed_status(
         lm = kept.landmark[ids]
         sign_id = np.unique(np.asarray(kept.landmark_code)[lm], return_inverse=True)[1]
         cov = pose_covariance(
-            camera, T, world, kept.axis_sigmas()[ids], kept.landmark_sigma_m[lm], sign_id
+            camera, T, world, kept.pixel_noise()[ids], kept.landmark_sigma_m[lm], sign_id
         )
         return worst_axis_sigma(cov, T[:3, :3])
 
@@ -771,7 +771,13 @@ def _smoothed(
 
 
 def _scaled_measurements(meas: Measurements, scale: float) -> Measurements:
-    return replace(meas, sigma_px=meas.sigma_px * scale, sigma_uv_px=meas.axis_sigmas() * scale)
+    cov = None if meas.cov_uv_px is None else meas.cov_uv_px * scale**2
+    return replace(
+        meas,
+        sigma_px=meas.sigma_px * scale,
+        sigma_uv_px=meas.axis_sigmas() * scale,
+        cov_uv_px=cov,
+    )
 
 
 def _residual_scaled(

@@ -42,7 +42,7 @@ import gtsam
 import numpy as np
 from signpose.estimator.camera import CameraModel
 from signpose.estimator.perframe import PerFrameSettings, run_per_frame
-from signpose.estimator.projection import pixels_and_pose_jacobian
+from signpose.estimator.projection import pixels_and_pose_jacobian, whitened
 from signpose.estimator.smoother import (
     BIAS_KEY,
     CONSTANT_VELOCITY,
@@ -1007,7 +1007,7 @@ def pose_statuses(
     """
     order = np.argsort(kept.frame, kind="stable")
     starts = np.searchsorted(kept.frame[order], np.arange(len(poses) + 1))
-    sigma_uv = kept.axis_sigmas()  # per keypoint and axis, as the factors have them
+    noise = kept.pixel_noise()  # per keypoint, as the factors have it
     out = []
     for i in range(len(poses)):
         ids = order[starts[i] : starts[i + 1]]
@@ -1016,7 +1016,7 @@ def pose_statuses(
             continue
         world = landmarks[kept.landmark[ids]]
         uv, _, _ = pixels_and_pose_jacobian(camera, poses[i], world)
-        chi2 = float(np.sum(((kept.px[ids] - uv) / sigma_uv[ids]) ** 2))
+        chi2 = float(np.sum(whitened(kept.px[ids] - uv, noise[ids]) ** 2))
         if np.all(np.isfinite(sigma_xyz[i])):  # the marginal: what the user is given
             worst = float(np.max(sigma_xyz[i]))
         else:

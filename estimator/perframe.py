@@ -8,7 +8,8 @@ Conventions: ``world_T_cam`` is (4, 4), the camera axes are OpenCV's
 ``estimator.camera.undistort_px`` before any pose math, and the decoder's
 raw-pixel sigmas carried with them through the lens's Jacobian
 (``camera.undistort_px_jacobian``): a barrel lens or a fisheye stretches the
-image's edges, and a keypoint there is less certain in undistorted pixels.
+image's edges, and a keypoint there is less certain in undistorted pixels
+(a full 2 x 2 covariance: the stretch is radial, so it correlates u and v).
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ import numpy as np
 from signpose.estimator.camera import (
     CameraModel,
     undistort_px_jacobian,
-    undistorted_sigmas,
+    undistorted_cov,
 )
-from signpose.estimator.projection import PoseFit, pixels_and_pose_jacobian, pose_fit
+from signpose.estimator.projection import PoseFit, pixels_and_pose_jacobian, pose_fit, weigher
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 from tqdm import tqdm
@@ -139,6 +140,12 @@ class _Correspondences:
     px: np.ndarray  # (N, 2) undistorted pixels (skew-free, see _correspondences)
     sigma_px: np.ndarray  # (N, 2) undistorted-pixel sigma of each point per image axis (u, v)
     sigma_m: np.ndarray  # (N,) survey sigma of each point [m]
+    cov_px: np.ndarray | None = None  # (N, 2, 2) their covariance through a lens [px^2]
+
+    @property
+    def noise(self) -> np.ndarray:
+        """What the fits whiten by: ``cov_px`` through a lens, else ``sigma_px``."""
+        return self.sigma_px if self.cov_px is None else self.cov_px
 
     def fit(
         self,
@@ -160,7 +167,7 @@ class _Correspondences:
             world_T_cam,
             self.world[inliers],
             self.px[inliers] - uv,
-            self.sigma_px[inliers],
+            self.noise[inliers],
             self.sigma_m[inliers],
             sign_id[inliers],
             optimal,
@@ -229,17 +236,23 @@ def _correspondences(
     # The decoder's sigmas are in raw pixels: carried through the lens's
     # Jacobian into the undistorted image the pose math works in.
     px, jac, valid = undistort_px_jacobian(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
-    sigma_px = undistorted_sigmas(jac, np.asarray(sig_px, float).reshape(-1, 2))
+    sigma_px = np.asarray(sig_px, float).reshape(-1, 2)
     sigma_m = np.asarray(sig_m, float)
+    cov = None
+    if jac is not None:  # the lens correlates the axes: the full 2 x 2 covariance
+        cov = undistorted_cov(jac, sigma_px)
+        sigma_px = np.sqrt(np.stack([cov[:, 0, 0], cov[:, 1, 1]], axis=1))
     if valid is not None and not np.all(valid):  # where the lens model holds no inverse
         keep = np.nonzero(valid)[0].tolist()
         codes, names = [codes[k] for k in keep], [names[k] for k in keep]
-        world_a, px, sigma_px, sigma_m = (a[valid] for a in (world_a, px, sigma_px, sigma_m))
+        world_a, px, sigma_px, sigma_m, cov = (
+            a[valid] for a in (world_a, px, sigma_px, sigma_m, cov)
+        )
     # The solvers here read only fx, fy, cx, cy (as cv2.solvePnP does): take the
     # skew term K[0, 1] * y off, so that px is the skew-free pinhole image.
     if camera.K[0, 1] != 0.0:
         px[:, 0] -= camera.K[0, 1] * (px[:, 1] - camera.cy) / camera.fy
-    return _Correspondences(codes, names, world_a, px, sigma_px, sigma_m)
+    return _Correspondences(codes, names, world_a, px, sigma_px, sigma_m, cov)
 
 
 def _spread(points: np.ndarray) -> np.ndarray:
@@ -625,18 +638,19 @@ def _weighted_refine(
     not lower the weighted error, or leaves a point behind the camera, ends it.
     """
     sig = c.sigma_px[inliers]
-    if sig.size == 0 or np.all(sig == sig.flat[0]):
+    if sig.size == 0 or (c.cov_px is None and np.all(sig == sig.flat[0])):
         return world_T_cam
     pin = _pinhole(camera)
-    X, px, w = c.world[inliers], c.px[inliers], 1.0 / sig.reshape(-1) ** 2
+    X, px = c.world[inliers], c.px[inliers]
+    weigh = weigher(c.noise[inliers], len(X))  # y -> W y, W the pixels' inverse covariance
     T = world_T_cam
     uv, J, _ = pixels_and_pose_jacobian(pin, T, X)
     r = (px - uv).reshape(-1)
-    err = float(r @ (w * r))
+    err = float(r @ weigh(r))
     for _ in range(_WEIGHTED_STEPS):
         Jf = J.reshape(-1, 6)
         try:
-            xi = np.linalg.solve(Jf.T @ (w[:, None] * Jf), Jf.T @ (w * r))
+            xi = np.linalg.solve(Jf.T @ weigh(Jf), Jf.T @ weigh(r))
         except np.linalg.LinAlgError:
             break
         new = T.copy()  # world_T_cam * Exp(xi), xi = [omega, v] in the camera frame
@@ -644,7 +658,7 @@ def _weighted_refine(
         new[:3, 3] = T[:3, 3] + T[:3, :3] @ xi[3:]
         uv, J_new, _ = pixels_and_pose_jacobian(pin, new, X)
         r_new = (px - uv).reshape(-1)
-        err_new = float(r_new @ (w * r_new))
+        err_new = float(r_new @ weigh(r_new))
         depth_ok = np.all(((X - new[:3, 3]) @ new[:3, :3])[:, 2] > 0)
         if not (np.isfinite(err_new) and err_new <= err and depth_ok):
             break

@@ -98,14 +98,71 @@ def pose_information(
             (K, 2) per image axis (u, v).
     """
     _, J, _ = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
+    if is_covariance(sigma_px):
+        return np.einsum("kai,kab,kbj->ij", J, information_blocks(sigma_px), J)
     w = 1.0 / axis_sigmas(sigma_px, len(J)) ** 2
     return np.einsum("ka,kai,kaj->ij", w, J, J)
 
 
 def axis_sigmas(sigma_px: np.ndarray, k: int) -> np.ndarray:
-    """(K, 2) per-axis pixel sigmas from (K,) isotropic or (K, 2) per-axis ones."""
+    """(K, 2) per-axis pixel sigmas from (K,) isotropic or (K, 2) per-axis ones,
+    or the marginal sigmas of (K, 2, 2) covariances."""
     sp = np.asarray(sigma_px, float)
+    if sp.ndim == 3:
+        return np.sqrt(np.stack([sp[:, 0, 0], sp[:, 1, 1]], axis=1))
     return np.repeat(sp.reshape(-1, 1), 2, axis=1) if sp.size == k else sp.reshape(k, 2)
+
+
+# Pixel noise comes as (K,) isotropic sigmas, (K, 2) per-axis sigmas or, through
+# a lens (its Jacobian correlates the axes: ``camera.undistorted_cov``), as
+# (K, 2, 2) covariances [px^2]; the functions here take any of the three.
+
+
+def is_covariance(sigma_px: np.ndarray) -> bool:
+    """True for (K, 2, 2) pixel covariances (else per-axis or isotropic sigmas)."""
+    return np.ndim(sigma_px) == 3
+
+
+def information_blocks(cov: np.ndarray) -> np.ndarray:
+    """(K, 2, 2) inverses of (K, 2, 2) pixel covariances (closed form)."""
+    c = np.asarray(cov, float)
+    det = c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] * c[:, 1, 0]
+    out = np.empty_like(c)
+    out[:, 0, 0], out[:, 1, 1] = c[:, 1, 1] / det, c[:, 0, 0] / det
+    out[:, 0, 1], out[:, 1, 0] = -c[:, 0, 1] / det, -c[:, 1, 0] / det
+    return out
+
+
+def whitened(residual_px: np.ndarray, sigma_px: np.ndarray) -> np.ndarray:
+    """(K, 2) residuals whitened by their pixel noise: ``r / sigma`` per axis, or
+    ``L^-1 r`` with ``L L^T`` a (K, 2, 2) covariance (its Cholesky factor, closed
+    form), so that the squares sum to ``r^T Sigma^-1 r``."""
+    r = np.asarray(residual_px, float).reshape(-1, 2)
+    if not is_covariance(sigma_px):
+        return r / axis_sigmas(sigma_px, len(r))
+    c = np.asarray(sigma_px, float)
+    l11 = np.sqrt(c[:, 0, 0])
+    l21 = c[:, 1, 0] / l11
+    l22 = np.sqrt(c[:, 1, 1] - l21**2)
+    w0 = r[:, 0] / l11
+    return np.stack([w0, (r[:, 1] - l21 * w0) / l22], axis=1)
+
+
+def weigher(sigma_px: np.ndarray, k: int):
+    """``y -> W y`` for (2K,) or (2K, m) y, W the pixels' (2K, 2K) inverse covariance."""
+    if is_covariance(sigma_px):
+        blocks = information_blocks(sigma_px)
+
+        def weigh_blocks(y: np.ndarray) -> np.ndarray:
+            return (blocks @ y.reshape(k, 2, -1)).reshape(y.shape)
+
+        return weigh_blocks
+    w = 1.0 / axis_sigmas(sigma_px, k).reshape(-1) ** 2
+
+    def weigh(y: np.ndarray) -> np.ndarray:
+        return w[:, None] * y if y.ndim == 2 else w * y
+
+    return weigh
 
 
 def position_cov_world(cov6: np.ndarray, world_R_cam: np.ndarray) -> np.ndarray:
@@ -169,7 +226,6 @@ def pose_covariance(
     if k < 3:
         return None
     _, J, J_point = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
-    sp = axis_sigmas(sigma_px, k)
     sm = np.asarray(sigma_m, float).reshape(-1)
     same = np.eye(k, dtype=bool) if sign_id is None else sign_id[:, None] == sign_id[None, :]
     # (2K, 2K): blocks J_a sigma^2 J_b^T between keypoints a, b of one sign.
@@ -177,7 +233,13 @@ def pose_covariance(
         np.einsum("aij,bkj->aibk", J_point, J_point)
         * (same * sm[:, None] * sm[None, :])[:, None, :, None]
     )
-    C = survey.reshape(2 * k, 2 * k) + np.diag(sp.reshape(-1) ** 2)
+    C = survey.reshape(2 * k, 2 * k)
+    if is_covariance(sigma_px):
+        idx = np.arange(k)
+        C4 = C.reshape(k, 2, k, 2)
+        C4[idx, :, idx, :] += np.asarray(sigma_px, float)
+    else:
+        C = C + np.diag(axis_sigmas(sigma_px, k).reshape(-1) ** 2)
     Jf = J.reshape(2 * k, 6)
     info = Jf.T @ np.linalg.solve(C, Jf)
     if np.linalg.cond(info) > MAX_CONDITION:
@@ -264,7 +326,8 @@ def pose_fit(
         world_T_cam: (4, 4) the pose.
         world_p: (K, 3) world points [m].
         residual_px: (K, 2) observed minus projected pixels at the pose.
-        sigma_px: (K,) or (K, 2) pixel sigmas (per image axis).
+        sigma_px: (K,) or (K, 2) pixel sigmas (per image axis), or (K, 2, 2)
+            pixel covariances [px^2].
         sigma_m: (K,) survey sigmas [m] (zeros: an exact map).
         sign_id: (K,) sign of each point (its survey error a rigid shift), or None.
         optimal: the pose minimises the pixel-weighted residuals (PnP); False
@@ -273,29 +336,28 @@ def pose_fit(
             pixel-weighted fit it is not.
     """
     k = len(world_p)
-    sp = axis_sigmas(sigma_px, k).reshape(-1)
+    weigh = weigher(sigma_px, k)
     r = np.asarray(residual_px, float).reshape(-1)
-    w = 1.0 / sp**2
-    chi2_pixel = float(r @ (w * r))
+    chi2_pixel = float(r @ weigh(r))
     if k < 3:
         return PoseFit(None, None, chi2_pixel, chi2_pixel)
     _, J, J_point = pixels_and_pose_jacobian(camera, world_T_cam, world_p)
     Jf = J.reshape(2 * k, 6)
-    info = Jf.T @ (w[:, None] * Jf)
+    info = Jf.T @ weigh(Jf)
     G = survey_columns(J_point, sigma_m, sign_id)
-    chi2_map = _chi2_map(Jf if optimal else None, r, w, G, chi2_pixel)
+    chi2_map = _chi2_map(Jf if optimal else None, r, weigh, G, chi2_pixel)
     if np.linalg.cond(info) > MAX_CONDITION:
         return PoseFit(None, None, chi2_pixel, chi2_map)
     cov_px = np.linalg.inv(info)
-    AG = cov_px @ (Jf.T @ (w[:, None] * G))  # (6, 3S): pose error per unit survey error
+    AG = cov_px @ (Jf.T @ weigh(G))  # (6, 3S): pose error per unit survey error
     cov_sv = AG @ AG.T
     return PoseFit(cov_px, 0.5 * (cov_sv + cov_sv.T), chi2_pixel, chi2_map)
 
 
-def _chi2_map(
-    Jf: np.ndarray | None, r: np.ndarray, w: np.ndarray, G: np.ndarray, chi2: float
-) -> float:
-    """min over xi of (r - J xi)^T C^-1 (r - J xi), C = diag(1 / w) + G G^T (Woodbury).
+def _chi2_map(Jf: np.ndarray | None, r: np.ndarray, weigh, G: np.ndarray, chi2: float) -> float:
+    """min over xi of (r - J xi)^T C^-1 (r - J xi), C = W^-1 + G G^T (Woodbury).
+
+    ``weigh``: y -> W y, W the pixels' inverse covariance (``weigher``).
 
     The residuals of a pixel-weighted fit refitted by generalised least
     squares: the same as the generalised least-squares residuals of the
@@ -304,11 +366,11 @@ def _chi2_map(
     """
     if G.size == 0 or not np.any(G):
         return chi2
-    wG = w[:, None] * G
+    wG = weigh(G)
     M = np.eye(G.shape[1]) + G.T @ wG
 
     def c_inv(y: np.ndarray) -> np.ndarray:  # C^-1 y by Woodbury
-        wy = w[:, None] * y if y.ndim == 2 else w * y
+        wy = weigh(y)
         return wy - wG @ np.linalg.solve(M, G.T @ wy)
 
     try:

@@ -155,6 +155,11 @@ def _joined(parts: list[Measurements]) -> tuple[Measurements, list[int]]:
         sigma_px=cat([m.sigma_px for m in parts]),
         sign_index=cat([m.sign_index for m in parts]),
         sigma_uv_px=cat([m.axis_sigmas() for m in parts]).reshape(-1, 2),
+        cov_uv_px=(
+            None
+            if all(m.cov_uv_px is None for m in parts)
+            else cat([m.pixel_cov() for m in parts]).reshape(-1, 2, 2)
+        ),
         n_frames=offset,
     )
     return joined, starts

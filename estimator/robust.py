@@ -199,11 +199,11 @@ def innovation_chi2(
     r = (meas.px[ids] - uv).reshape(-1)
     J = J_pose.reshape(-1, 6)
     S = J @ cov6 @ J.T
-    for k, (sig_px, sig_m) in enumerate(
-        zip(meas.axis_sigmas()[ids], meas.landmark_sigma_m[lm], strict=True)
+    for k, (cov_px, sig_m) in enumerate(
+        zip(meas.pixel_cov()[ids], meas.landmark_sigma_m[lm], strict=True)
     ):
         block = slice(2 * k, 2 * k + 2)
-        S[block, block] += np.diag(sig_px**2) + sig_m**2 * J_point[k] @ J_point[k].T
+        S[block, block] += cov_px + sig_m**2 * J_point[k] @ J_point[k].T
     try:
         return float(r @ np.linalg.solve(S, r))
     except np.linalg.LinAlgError:
@@ -232,7 +232,7 @@ def _group_chi2(
     J = J_pose.reshape(g, 2 * k, 6)
     S = J @ pred_cov[frame] @ J.transpose(0, 2, 1)
     noise = (
-        meas.axis_sigmas()[ids, :, None] ** 2 * np.eye(2)
+        meas.pixel_cov()[ids]
         + meas.landmark_sigma_m[lm, None, None] ** 2 * J_point @ J_point.transpose(0, 2, 1)
     ).reshape(g, k, 2, 2)
     for a in range(k):

@@ -10,9 +10,11 @@ Factor graph:
       keypoint with its own prior, or the survey as exact;
     * a ``GenericProjectionFactorCal3_S2`` per observed keypoint on undistorted
       pixels, noise ``Robust(kernel, Diagonal(sigma_u, sigma_v))`` (the
-      decoder's per-keypoint, per-axis sigmas, else the sign's, given in raw
-      pixels and carried through the lens's Jacobian into the undistorted
-      image: ``camera.undistorted_sigmas``) with a Huber
+      decoder's per-keypoint, per-axis sigmas, else the sign's) or, through a
+      lens, ``Robust(kernel, Gaussian.Covariance(J diag(su^2, sv^2) J^T))``
+      (the decoder's sigmas are in raw pixels; J, the undistortion's Jacobian
+      at the keypoint, stretches and correlates them: ``Measurements.cov_uv_px``)
+      with a Huber
       (default), Tukey or no kernel (GNC weighs plain Gaussian factors);
     * a motion prior between consecutive frames scaled by their time step dt:
       ``random-walk``: ``BetweenFactorPose3`` to the identity with sigmas
@@ -47,11 +49,11 @@ import numpy as np
 from signpose.estimator.camera import (
     CameraModel,
     undistort_px_jacobian,
-    undistorted_sigmas,
+    undistorted_cov,
 )
 from signpose.estimator.marginals import Conditional, selected_covariances
 from signpose.estimator.perframe import keypoint_sigmas
-from signpose.estimator.projection import pixel_from_normalised
+from signpose.estimator.projection import pixel_from_normalised, whitened
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 from tqdm import tqdm
@@ -273,8 +275,11 @@ class Measurements:
         sigma_uv_px: (M, 2) pixel sigma per image axis (u, v): the decoder's
             ``keypoint_sigma_px``, else its ``sigma_px`` on both (raw pixels),
             carried into the undistorted image by the lens's Jacobian there
-            (``sqrt(diag(J Sigma J^T))``, ``camera.undistorted_sigmas``);
-            None: ``sigma_px`` on both axes.
+            (the marginals ``sqrt(diag(cov_uv_px))``); None: ``sigma_px`` on
+            both axes.
+        cov_uv_px: (M, 2, 2) pixel covariance [px^2] in the undistorted image,
+            ``J diag(su^2, sv^2) J^T`` (the lens correlates the axes), or None
+            (no distortion: the axes' sigmas are the whole of it).
     """
 
     landmark_code: tuple[str, ...]
@@ -288,6 +293,7 @@ class Measurements:
     sign_index: np.ndarray
     n_frames: int
     sigma_uv_px: np.ndarray | None = None
+    cov_uv_px: np.ndarray | None = None
 
     def subset(self, keep: np.ndarray) -> Measurements:
         """The measurements where ``keep`` (M,) is True (or at indices ``keep``)."""
@@ -299,6 +305,7 @@ class Measurements:
             sigma_px=self.sigma_px[keep],
             sign_index=self.sign_index[keep],
             sigma_uv_px=None if self.sigma_uv_px is None else self.sigma_uv_px[keep],
+            cov_uv_px=None if self.cov_uv_px is None else self.cov_uv_px[keep],
         )
 
     def axis_sigmas(self) -> np.ndarray:
@@ -306,6 +313,23 @@ class Measurements:
         if self.sigma_uv_px is not None:
             return self.sigma_uv_px
         return np.repeat(self.sigma_px.reshape(-1, 1), 2, axis=1)
+
+    def pixel_noise(self) -> np.ndarray:
+        """What the factors whiten by: (M, 2, 2) covariances where the lens
+        correlates the axes (``cov_uv_px``), else the (M, 2) axes' sigmas
+        (``projection.whitened`` and the pose functions take either)."""
+        return self.axis_sigmas() if self.cov_uv_px is None else self.cov_uv_px
+
+    def pixel_cov(self) -> np.ndarray:
+        """(M, 2, 2) pixel covariance of every measurement [px^2]."""
+        if self.cov_uv_px is not None:
+            return self.cov_uv_px
+        return self.axis_sigmas()[:, :, None] ** 2 * np.eye(2)
+
+    def whitened(self, residual_px: np.ndarray, ids: np.ndarray | None = None) -> np.ndarray:
+        """(K, 2) residuals of measurements ``ids`` (all: None) whitened as the factors do."""
+        noise = self.pixel_noise()
+        return whitened(residual_px, noise if ids is None else noise[ids])
 
 
 def collect_measurements(
@@ -336,10 +360,16 @@ def collect_measurements(
     # The decoder's sigmas are raw pixels': carried through the lens's Jacobian;
     # a keypoint where the lens model holds no inverse is dropped (not guessed).
     px, jac, valid = undistort_px_jacobian(camera, np.asarray(raw, dtype=float).reshape(-1, 2))
-    sigma_uv = undistorted_sigmas(jac, np.asarray(sp, dtype=float).reshape(-1, 2))
+    sigma_uv = np.asarray(sp, dtype=float).reshape(-1, 2)
+    cov = None
+    if jac is not None:
+        cov = undistorted_cov(jac, sigma_uv)
+        sigma_uv = np.sqrt(np.stack([cov[:, 0, 0], cov[:, 1, 1]], axis=1))
     fr_a, lm_a, si_a = (np.asarray(a, dtype=np.int64) for a in (fr, lm, si))
     if valid is not None and not np.all(valid):
-        px, sigma_uv, fr_a, lm_a, si_a = (a[valid] for a in (px, sigma_uv, fr_a, lm_a, si_a))
+        px, sigma_uv, cov, fr_a, lm_a, si_a = (
+            a[valid] for a in (px, sigma_uv, cov, fr_a, lm_a, si_a)
+        )
     return Measurements(
         tuple(codes),
         tuple(names),
@@ -352,6 +382,7 @@ def collect_measurements(
         si_a,
         len(frames),
         sigma_uv,
+        cov,
     )
 
 
@@ -446,17 +477,26 @@ class _GraphBuilder:
                 base = gtsam.noiseModel.Isotropic.Sigma(2, key[0])
             else:
                 base = gtsam.noiseModel.Diagonal.Sigmas(np.array(key))
-            if self.s.kernel == GNC:  # GNC weighs plain Gaussian factors itself
-                self._noise[key] = base
-            else:
-                est = gtsam.noiseModel.mEstimator
-                kernel = (
-                    est.Tukey.Create(self.s.tukey_k)
-                    if self.s.kernel == TUKEY
-                    else est.Huber.Create(self.s.huber_k)
-                )
-                self._noise[key] = gtsam.noiseModel.Robust.Create(kernel, base)
+            self._noise[key] = self._robust(base)
         return self._noise[key]
+
+    @staticmethod
+    def _gaussian(cov: np.ndarray):
+        """A full 2 x 2 pixel covariance's noise model (its Cholesky whitening)."""
+        return gtsam.noiseModel.Gaussian.Covariance(np.ascontiguousarray(cov, dtype=float))
+
+    def _robust(self, base):
+        """``base`` under the settings' kernel (GNC weighs plain Gaussian factors itself)."""
+        if self.s.kernel == GNC:
+            return base
+        if not hasattr(self, "_kernel"):  # one (stateless) kernel for every factor
+            est = gtsam.noiseModel.mEstimator
+            self._kernel = (
+                est.Tukey.Create(self.s.tukey_k)
+                if self.s.kernel == TUKEY
+                else est.Huber.Create(self.s.huber_k)
+            )
+        return gtsam.noiseModel.Robust.Create(self._kernel, base)
 
     def landmark_sigma(self, j: int) -> float:
         """Prior sigma of keypoint landmark j [m] (keypoints and fixed models)."""
@@ -528,14 +568,17 @@ class _GraphBuilder:
         rounding sigmas inside it cost more than the gtsam constructors.
         """
         m = self.m
-        sig = np.round(m.axis_sigmas().astype(float), 6)
-        # one complex key per (sigma_u, sigma_v): 4.7 ms for 74,000 measurements,
-        # np.unique(axis=0) 40 ms; a real key when every keypoint is isotropic (1.3 ms)
-        iso = bool(np.all(sig[:, 0] == sig[:, 1]))
-        key = sig[:, 0] if iso else sig[:, 0] + 1j * sig[:, 1]
-        uniq, inv = np.unique(key, return_inverse=True)
-        models = [self._pixel_noise(u.real, u.real if iso else u.imag) for u in uniq]
-        self._meas_noise = [models[k] for k in inv.reshape(-1).tolist()]
+        if m.cov_uv_px is not None:  # through a lens: one full 2 x 2 model per keypoint
+            self._meas_noise = [self._robust(self._gaussian(c)) for c in m.cov_uv_px]
+        else:
+            sig = np.round(m.axis_sigmas().astype(float), 6)
+            # one complex key per (sigma_u, sigma_v): 4.7 ms for 74,000 measurements,
+            # np.unique(axis=0) 40 ms; a real key when every keypoint is isotropic (1.3 ms)
+            iso = bool(np.all(sig[:, 0] == sig[:, 1]))
+            key = sig[:, 0] if iso else sig[:, 0] + 1j * sig[:, 1]
+            uniq, inv = np.unique(key, return_inverse=True)
+            models = [self._pixel_noise(u.real, u.real if iso else u.imag) for u in uniq]
+            self._meas_noise = [models[k] for k in inv.reshape(-1).tolist()]
         self._meas_px = list(np.ascontiguousarray(m.px, dtype=float))
         self._meas_lm = m.landmark.tolist()
         self._lm_keys = [L(j) for j in range(len(m.landmark_code))]
@@ -1558,11 +1601,12 @@ def residuals_px(meas: Measurements, res: SmootherResult, camera: CameraModel) -
 
 
 def whitened_chi2(meas: Measurements, res: SmootherResult, camera: CameraModel) -> np.ndarray:
-    """(M,) squared residual of every measurement whitened per axis: what the kernels see."""
+    """(M,) squared residual of every measurement whitened as the factors whiten it
+    (per axis, or by its 2 x 2 covariance through a lens): what the kernels see."""
     if len(meas.frame) == 0:
         return np.zeros(0)
     pred = project(camera, res.world_T_cam[meas.frame], res.landmarks_world[meas.landmark])
-    return np.sum(((pred - meas.px) / meas.axis_sigmas()) ** 2, axis=1)
+    return np.sum(meas.whitened(pred - meas.px) ** 2, axis=1)
 
 
 def covariances_at(

@@ -132,12 +132,12 @@ def _held_out_score(
     default: np.ndarray,
     cap: float,
 ) -> float:
-    """Mean capped squared residual of the held-out measurements, whitened per axis
-    (``Measurements.axis_sigmas``, as the projection factors whiten them)."""
+    """Mean capped squared residual of the held-out measurements, whitened as the
+    projection factors whiten them (``Measurements.whitened``)."""
     train = meas.subset(~held)
     r = smooth_batch(train, stamps_s, init, camera, s, default)
     pred = project(camera, r.world_T_cam[meas.frame[held]], r.landmarks_world[meas.landmark[held]])
-    chi2 = np.sum(((pred - meas.px[held]) / meas.axis_sigmas()[held]) ** 2, axis=1)
+    chi2 = np.sum(meas.whitened(pred - meas.px[held], held) ** 2, axis=1)
     return float(np.mean(np.minimum(chi2, cap)))
 
 

@@ -7,10 +7,13 @@ undistortion's Jacobian (``camera.undistort_px_jacobian``).
 """
 
 from dataclasses import replace
+from types import SimpleNamespace
 
+import gtsam
 import numpy as np
 import pytest
 import signpose.estimator.perframe as perframe
+import signpose.estimator.smoother as smoother
 from signpose.estimator.camera import (
     EQUIDISTANT,
     CameraModel,
@@ -19,8 +22,10 @@ from signpose.estimator.camera import (
     undistort_px_jacobian,
     undistorted_sigmas,
 )
+from signpose.estimator.estimate import EstimatorSettings, estimate_trajectories
 from signpose.estimator.noise_scale import exact_map_pose, pixel_noise_scale
-from signpose.estimator.smoother import collect_measurements
+from signpose.estimator.smoother import collect_measurements, whitened_chi2
+from signpose.estimator.status import PoseStatus
 from signpose.frontend.observations import FrameObservations, SignObservation
 from signpose.maps.loader import bundled_map_path, load_map
 
@@ -142,3 +147,49 @@ def test_pixels_the_lens_model_cannot_undistort_are_dropped(camera):
         FrameObservations(0, 0, (W, H), (obs,)), sign_map, camera, all_keypoints=True
     )
     assert c.names == ["center"] and len(c.px) == len(c.sigma_px) == len(c.world) == 1
+
+
+def _lens_flight(camera: CameraModel, n: int = 30):
+    sign_map = load_map(bundled_map_path())
+    rng = np.random.default_rng(2)
+    s = SyntheticSettings(sigma_px=0.3)
+    frames, gt, _ = paper_like_frames(sign_map, camera, n, rng, s, fps=n / 7, distance_m=6.0)
+    return sign_map, frames, gt
+
+
+@pytest.mark.parametrize("camera", [BARREL, FISHEYE], ids=["plumb_bob", "equidistant"])
+def test_the_smoothers_measurements_whiten_to_chi_square_2_at_the_truth(camera, monkeypatch):
+    sign_map, frames, gt = _lens_flight(camera, 90)
+    truth = SimpleNamespace(
+        world_T_cam=np.asarray(gt.world_T_cam()),
+        landmarks_world=np.array([p for s in sign_map.signs for p in s.keypoints_world().values()]),
+    )
+    meas = collect_measurements(frames, sign_map, camera)
+    assert meas.cov_uv_px is not None and len(meas.frame) > 1000
+    mean = float(np.mean(whitened_chi2(meas, truth, camera)))
+    assert 1.9 < mean < 2.1  # chi-square with 2 dof: 2 +- 0.06 at 2 sigma here
+    # every consumer whitens alike: the gtsam factors' own whitening is the same
+    m = 7
+    noise = gtsam.noiseModel.Gaussian.Covariance(meas.cov_uv_px[m])
+    r = np.array([0.3, -0.2])
+    assert np.allclose(noise.whiten(r) @ noise.whiten(r), np.sum(meas.whitened(r[None], [m]) ** 2))
+    assert np.isclose(
+        np.sum(meas.whitened(r[None], [m]) ** 2), r @ np.linalg.solve(meas.cov_uv_px[m], r)
+    )
+    # the raw-pixel sigmas taken as undistorted ones: too small, chi-square too large
+    real = smoother.undistort_px_jacobian
+    monkeypatch.setattr(smoother, "undistort_px_jacobian", lambda c, p: (real(c, p)[0], None, None))
+    raw = collect_measurements(frames, sign_map, camera)
+    assert float(np.mean(whitened_chi2(raw, truth, camera))) > 2.2
+
+
+def test_a_flight_through_a_strong_lens_is_smoothed_with_honest_statuses():
+    sign_map, frames, gt = _lens_flight(BARREL, 24)
+    s = replace(EstimatorSettings(), methods=("pnp", "smoothed"))
+    s = replace(s, smoother=replace(s.smoother, landmarks="fixed"))
+    r = estimate_trajectories(frames, sign_map, BARREL, s, False)
+    assert r.warnings == () and r.pixel_noise_scale < 1.1
+    sm = r.methods["smoothed"]
+    assert sum(st is PoseStatus.OK for st in sm.status) >= 20
+    err = np.linalg.norm(sm.world_T_cam[:, :3, 3] - np.asarray(gt.world_T_cam())[:, :3, 3], axis=1)
+    assert np.max(err / np.linalg.norm(sm.sigma_xyz, axis=1)) < 4.0  # sigmas that hold
