@@ -64,15 +64,18 @@ no pixel departing by more than 5 noise sigmas plus 0.2 px times the local
 gradient; the detector keeping a reference per code, dropped at ``detect``).
 A tracked sign does not look the same from frame to frame: motion blur and
 the resampling's phase move its edges by tens of gray levels.
-``scripts/bench_frontend.py --frames 40 --repeat 1 --appearance``: the
-largest change over the disc is a quarter of the contrast at the median
-(0.247 sim, 0.249 hard), 0.085 / 0.081 with both images smoothed by a 1 px
-Gaussian, and no pair of consecutive frames (338 sim, 205 hard) is within 5
-noise sigmas either way. With the reuse (not committed), ``bench_frontend
---frames 40`` reused 14 of 357 verifications (sim) and 10 of 220 (hard), and tracking
-cost more (sim 0.91x -> 1.05x ArUco: the references' upkeep). A test loose
-enough to reuse half the verifications would pass changes of a tenth of the
-contrast after smoothing, what a thin conductor across a white part leaves.
+``scripts/bench_frontend.py --frames 40 --repeat 1 --appearance``: that test
+calls 2.4 % of the consecutive-frame pairs unchanged on the sim flight (338
+pairs) and 3.4 % on the hard one (205), against 97.9 / 97.5 % of a still
+sign (the earlier frame again with fresh noise); the largest change over
+the disc is a quarter of the contrast at the median (0.247 sim, 0.249 hard;
+still 0.046 / 0.062), 0.085 / 0.081 with both images smoothed by a 1 px
+Gaussian (still 0.016 / 0.020). With the reuse (not committed),
+``bench_frontend --frames 40`` reused 14 of 357 verifications (sim) and 10
+of 220 (hard), and tracking cost more (sim 0.91x -> 1.05x ArUco: the
+references' upkeep). A test loose enough to reuse half the verifications
+would pass changes of a tenth of the contrast after smoothing, what a thin
+conductor across a white part leaves.
 """
 
 from __future__ import annotations

@@ -238,6 +238,10 @@ def _crop_times(scene, codes, check=None, other=None) -> dict:
 # The smoothing of --appearance [px], and the white noise's gain through it (1 / (2 sqrt(pi) s)).
 APPEARANCE_BLUR_PX = 1.0
 APPEARANCE_NOISE_GAIN = 1.0 / (2.0 * math.sqrt(math.pi) * APPEARANCE_BLUR_PX)
+# --appearance's test for a change: beyond this many noise sigmas of a difference of two
+# images, plus this registration error [px] times the local gradient.
+APPEARANCE_NOISE_K = 5.0
+APPEARANCE_SHIFT_PX = 0.2
 
 
 def _appearance(scene, codes) -> dict:
@@ -248,18 +252,24 @@ def _appearance(scene, codes) -> dict:
     in ``_crop_times``) in two consecutive frames, the earlier frame's pixels
     warped onto the later frame's refit homography (through the sign plane),
     compared over the disc less its outer pixel (the background's parallax
-    stays out): the largest absolute difference as a fraction of the contrast
-    (the disc's 97th less its 3rd percentile of gray), raw and with both
-    images smoothed over the disc by a ``APPEARANCE_BLUR_PX`` Gaussian
-    (a normalised convolution); and the share of pairs whose largest
-    difference is within 5 noise sigmas of a difference of two images
-    (``sigma_inputs.noise`` times the contrast, times sqrt(2), and times
-    ``APPEARANCE_NOISE_GAIN`` when smoothed), i.e. that a test for a change
-    larger than the noise at any pixel would call unchanged. ``scale_3pct``:
-    the share of pairs whose major axis changed by at most 3 %.
+    stays out), raw and with both images smoothed over the disc by a
+    ``APPEARANCE_BLUR_PX`` Gaussian (a normalised convolution): the largest
+    absolute difference as a fraction of the contrast (the disc's 97th less
+    its 3rd percentile of gray), and whether every pixel is within
+    ``APPEARANCE_NOISE_K`` noise sigmas of a difference of two images
+    (``sigma_inputs.noise`` times the contrast, floored at 1, times sqrt(2),
+    and times ``APPEARANCE_NOISE_GAIN`` when smoothed) plus
+    ``APPEARANCE_SHIFT_PX`` times the local gradient (the test a reuse would
+    make). The control: a still sign, i.e. the earlier frame again with
+    fresh Gaussian noise of sqrt(2) times its measured noise (a difference of
+    two such images has the noise of a difference of two frames), verified
+    again and compared the same way. ``scale_3pct``: the share of pairs whose
+    major axis changed by at most 3 %.
     """
+    rng = np.random.default_rng(BENCH_SEED)
     prev: dict[str, tuple] = {}
-    raw, smooth, within_raw, within_smooth, scale_ok = [], [], [], [], []
+    rows: dict[str, list] = {"flight": [], "still": []}
+    scale_ok = []
     for i, f in enumerate(scene["frames"]):
         truth = scene["boxes"][i]
         by_code = {s["code"]: s for s in truth["signs"] if s["diameter_px"] >= MIN_SIGN_PX}
@@ -271,47 +281,68 @@ def _appearance(scene, codes) -> dict:
             )
             shift = np.array([[1.0, 0, du], [0, 1.0, dv], [0, 0, 1.0]])
             for p in preds:
-                v = verify_sign(f, shift @ p.image_H_sign, p.code, codes)
+                h = shift @ p.image_H_sign
+                v = verify_sign(f, h, p.code, codes)
                 if v.ok and v.result.sigma_inputs is not None:
                     r = v.result
-                    cur[p.code] = (f, r.image_H_sign, r.ellipse[1][0], r.sigma_inputs.noise)
-        for code, (g1, h1, major1, _) in cur.items():
+                    cur[p.code] = (f, r.image_H_sign, r.ellipse[1][0], r.sigma_inputs.noise, h)
+        for code, (g1, h1, major1, _, _) in cur.items():
             if code not in prev:
                 continue
-            g0, h0, major0, noise0 = prev[code]
-            change = _appearance_change(g0, h0, g1, h1, major1)
-            if change is None:
+            g0, h0, major0, noise0, predicted0 = prev[code]
+            flight = _appearance_change(g0, h0, g1, h1, major1, noise0)
+            if flight is None:
                 continue
-            (d_raw, d_smooth), contrast = change
-            noise = max(noise0 * contrast, 1.0) * math.sqrt(2.0)
-            raw.append(d_raw / contrast)
-            smooth.append(d_smooth / contrast)
-            within_raw.append(d_raw <= 5.0 * noise)
-            within_smooth.append(d_smooth <= 5.0 * noise * APPEARANCE_NOISE_GAIN)
+            rows["flight"].append(flight)
             scale_ok.append(abs(major1 / major0 - 1.0) <= 0.03)
+            noisy = _with_fresh_noise(g0, h0, math.sqrt(2.0) * max(noise0 * flight[2], 1.0), rng)
+            v = verify_sign(noisy, predicted0, code, codes)
+            if v.ok:
+                (_, (major, _), _) = v.result.ellipse
+                still = _appearance_change(g0, h0, noisy, v.result.image_H_sign, major, noise0)
+                if still is not None:
+                    rows["still"].append(still)
         prev = cur
-    if not raw:
-        return {"pairs": 0}
-    q = lambda x, p: float(np.percentile(x, p))  # noqa: E731
-    return {
-        "pairs": len(raw),
-        "raw_p50": q(raw, 50),
-        "raw_p90": q(raw, 90),
-        "smooth_p10": q(smooth, 10),
-        "smooth_p50": q(smooth, 50),
-        "smooth_p90": q(smooth, 90),
-        "within_5_noise_raw": float(np.mean(within_raw)),
-        "within_5_noise_smooth": float(np.mean(within_smooth)),
-        "scale_3pct": float(np.mean(scale_ok)),
-    }
+    out: dict = {"pairs": len(rows["flight"]), "still_pairs": len(rows["still"])}
+    if not rows["flight"]:
+        return out
+    out["scale_3pct"] = float(np.mean(scale_ok))
+    for name, r in rows.items():
+        if not r:
+            continue
+        raw, smooth, _, same_raw, same_smooth = (np.array(x, float) for x in zip(*r, strict=True))
+        out[name] = {
+            "raw_p50": float(np.median(raw)),
+            "smooth_p50": float(np.median(smooth)),
+            "smooth_p90": float(np.percentile(smooth, 90)),
+            "unchanged_raw": float(same_raw.mean()),
+            "unchanged_smooth": float(same_smooth.mean()),
+        }
+    return out
 
 
-def _appearance_change(g0, h0, g1, h1, major1):
-    """((raw, smoothed) largest |difference| [gray levels], contrast), or None (see
-    ``_appearance``): frame 0's disc warped onto frame 1's."""
-    rim = np.stack([np.cos(np.linspace(0, 2 * np.pi, 48)), np.sin(np.linspace(0, 2 * np.pi, 48))])
-    inner = (0.5 - 1.0 / max(major1, 1e-9)) * rim.T
-    rim1 = cv2.perspectiveTransform(inner[None].astype(np.float64), h1)[0]
+def _with_fresh_noise(g, image_H_sign, sigma, rng):
+    """``g`` with Gaussian noise of ``sigma`` [gray levels] added around the sign's disc."""
+    rim = cv2.perspectiveTransform(_APPEARANCE_RIM[None] * 1.0, image_H_sign)[0]
+    x0, y0 = np.maximum(np.floor(rim.min(axis=0)).astype(int) - 4, 0)
+    x1, y1 = np.ceil(rim.max(axis=0)).astype(int) + 5
+    out = g.copy()
+    win = out[y0:y1, x0:x1]
+    win[...] = np.clip(np.round(win + rng.normal(0.0, sigma, win.shape)), 0, 255)
+    return out
+
+
+_APPEARANCE_RIM = 0.5 * np.stack(
+    [np.cos(np.linspace(0, 2 * np.pi, 48)), np.sin(np.linspace(0, 2 * np.pi, 48))], axis=1
+)
+
+
+def _appearance_change(g0, h0, g1, h1, major1, noise0):
+    """(raw, smoothed largest |difference| / contrast, contrast [gray levels],
+    unchanged raw, unchanged smoothed) of frame 0's disc warped onto frame 1's,
+    or None (see ``_appearance``); ``noise0``: frame 0's noise over the contrast."""
+    inner = (1.0 - 2.0 / max(major1, 1e-9)) * _APPEARANCE_RIM
+    rim1 = cv2.perspectiveTransform(inner[None], h1)[0]
     x0, y0 = np.floor(rim1.min(axis=0)).astype(int) - 2
     x1, y1 = np.ceil(rim1.max(axis=0)).astype(int) + 3
     if x0 < 0 or y0 < 0 or x1 > g1.shape[1] or y1 > g1.shape[0]:
@@ -338,12 +369,28 @@ def _appearance_change(g0, h0, g1, h1, major1):
     def smoothed(img):
         return cv2.GaussianBlur(img * m, (0, 0), APPEARANCE_BLUR_PX) / weight
 
+    def gradient(img):
+        gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3, scale=0.125)
+        gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3, scale=0.125)
+        return cv2.dilate(cv2.magnitude(gx, gy), np.ones((3, 3), np.uint8))
+
     contrast = float(np.percentile(before[inside], 97) - np.percentile(before[inside], 3))
     if contrast <= 0:
         return None
-    d_raw = float(np.abs(after - before)[inside].max())
-    d_smooth = float(np.abs(smoothed(after) - smoothed(before))[inside].max())
-    return (d_raw, d_smooth), contrast
+    noise = max(noise0 * contrast, 1.0) * math.sqrt(2.0)
+    d_raw = np.abs(after - before)
+    s_before = smoothed(before)
+    d_smooth = np.abs(smoothed(after) - s_before)
+    tol_raw = APPEARANCE_NOISE_K * noise + APPEARANCE_SHIFT_PX * gradient(before)
+    tol_smooth = APPEARANCE_NOISE_K * noise * APPEARANCE_NOISE_GAIN
+    tol_smooth = tol_smooth + APPEARANCE_SHIFT_PX * gradient(s_before)
+    return (
+        float(d_raw[inside].max()) / contrast,
+        float(d_smooth[inside].max()) / contrast,
+        contrast,
+        bool((d_raw <= tol_raw)[inside].all()),
+        bool((d_smooth <= tol_smooth)[inside].all()),
+    )
 
 
 def _ab(ab: dict, this, other, passes: int = 3) -> None:
@@ -527,13 +574,19 @@ def _print_scene(name: str, res: dict, n: int) -> None:
     a = res.get("appearance")
     if a is not None and a["pairs"]:
         print(
-            f"  appearance, {a['pairs']} signs verified in consecutive frames: largest change"
-            f" over the disc / contrast raw median {a['raw_p50']:.3f} (p90 {a['raw_p90']:.3f}),"
-            f" smoothed {APPEARANCE_BLUR_PX:g} px p10 / median / p90 {a['smooth_p10']:.3f} /"
-            f" {a['smooth_p50']:.3f} / {a['smooth_p90']:.3f}; within 5 noise sigmas: raw"
-            f" {a['within_5_noise_raw']:.1%}, smoothed {a['within_5_noise_smooth']:.1%};"
+            f"  appearance, {a['pairs']} signs verified in consecutive frames (a still sign:"
+            f" {a['still_pairs']}), largest change over the disc / contrast, and unchanged"
+            f" ({APPEARANCE_NOISE_K:g} noise sigmas + {APPEARANCE_SHIFT_PX:g} px x gradient);"
             f" scale within 3 %: {a['scale_3pct']:.1%}"
         )
+        for name in ("flight", "still"):
+            if name in a:
+                b = a[name]
+                print(
+                    f"    {name:6s} raw median {b['raw_p50']:.3f}, smoothed {APPEARANCE_BLUR_PX:g}"
+                    f" px median {b['smooth_p50']:.3f} (p90 {b['smooth_p90']:.3f}); unchanged"
+                    f" raw {b['unchanged_raw']:.1%}, smoothed {b['unchanged_smooth']:.1%}"
+                )
 
 
 def _ab_line(c: dict) -> str:
