@@ -367,6 +367,13 @@ def collect_measurements(
         sigma_uv = np.sqrt(np.stack([cov[:, 0, 0], cov[:, 1, 1]], axis=1))
     fr_a, lm_a, si_a = (np.asarray(a, dtype=np.int64) for a in (fr, lm, si))
     if valid is not None and not np.all(valid):
+        log.warning(
+            "%d of %d keypoints lie where the camera file's lens model has no inverse "
+            "(a ray at 90 deg or more, or beyond the radius its polynomial was fitted to): "
+            "not used; check the calibration covers the whole image",
+            int(np.sum(~valid)),
+            len(valid),
+        )
         px, sigma_uv, cov, fr_a, lm_a, si_a = (
             a[valid] for a in (px, sigma_uv, cov, fr_a, lm_a, si_a)
         )

@@ -6,6 +6,7 @@ toward its edges. A keypoint's sigma there is ``J sigma_raw`` with J the
 undistortion's Jacobian (``camera.undistort_px_jacobian``).
 """
 
+import logging
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -131,7 +132,7 @@ FOLDED = _camera("plumb_bob", [-0.5, 0.1, 0.0, 0.0, 0.0])
 
 
 @pytest.mark.parametrize("camera", [WIDE_FISHEYE, FOLDED], ids=["beyond_90_deg", "folded"])
-def test_pixels_the_lens_model_cannot_undistort_are_dropped(camera):
+def test_pixels_the_lens_model_cannot_undistort_are_dropped(camera, caplog):
     px = _grid(17)
     und, _, valid = undistort_px_jacobian(camera, px)
     assert 0 < np.sum(~valid) < len(px) // 2 and valid[len(px) // 2]  # the centre holds
@@ -140,7 +141,9 @@ def test_pixels_the_lens_model_cannot_undistort_are_dropped(camera):
     bad = px[np.nonzero(~valid)[0][0]]
     kp = {"center": (camera.cx, camera.cy), "direction": tuple(bad)}
     obs = SignObservation(code, kp, None, 0.1, 1.0)
-    meas = collect_measurements([FrameObservations(0, 0, (W, H), (obs,))], sign_map, camera)
+    with caplog.at_level(logging.WARNING):
+        meas = collect_measurements([FrameObservations(0, 0, (W, H), (obs,))], sign_map, camera)
+    assert "1 of 2 keypoints" in caplog.text and "lens model" in caplog.text
     assert [meas.landmark_name[j] for j in meas.landmark] == ["center"]
     assert np.allclose(meas.px[0], (camera.cx, camera.cy))
     c = perframe._correspondences(
