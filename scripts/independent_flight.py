@@ -22,6 +22,13 @@ byte as before) make it a flight for an end-to-end evaluation
   (Newton on the polynomial written out here, not OpenCV's) puts it; blur and
   noise are added after the lens, as a sensor would. camera.yaml carries the
   distortion.
+* ``--lens equidistant --distortion k1 k2 k3 k4 --hfov DEG``: a wide-angle /
+  fisheye lens instead (the equidistant or Kannala-Brandt model of Kalibr's and
+  ROS's ``equidistant`` files: a ray at ``theta`` from the axis lands at
+  ``r = f theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``), its
+  focal set so that the principal row spans DEG; drawn as above, with this
+  script's own inverse (Newton on theta_d(theta)), not ``cv2.fisheye``, and
+  camera.yaml a ROS camera_info with ``distortion_model: equidistant``.
 * ``--jpeg LO HI``: each frame JPEG-encoded at a quality drawn in [LO, HI]
   before the video.
 * ``--vibration DEG``: high-frequency rotation jitter of the camera (6-14 Hz
@@ -40,6 +47,7 @@ Writes ``video.mp4``, ``camera.yaml`` and ``groundtruth.tum`` into OUT:
 
     .venv/bin/python scripts/independent_flight.py OUT --frames 600 [--width 1920 --height 1080]
         [--distortion -0.3 0.1 0.0005 -0.0003] [--jpeg 70 90] [--vibration 0.3] [--truth]
+        [--lens equidistant --distortion -0.006 0.016 -0.024 0.0155 --hfov 120]
 """
 
 from __future__ import annotations
@@ -54,6 +62,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from independent_scene import SUPERSAMPLE, _bar_polygon, _face, _motion_kernel, _photo
+from signpose.estimator.camera import EQUIDISTANT, PLUMB_BOB, CameraModel
 from signpose.estimator.trajectory import Trajectory
 from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map
 
@@ -77,6 +86,8 @@ RIM_POINTS = 48  # points on a sign's rim projected for its box in truth.jsonl
 VIBRATION_HZ = (6.0, 14.0)  # frequency range of the camera's rotation jitter
 PAN_PERIOD_S = (8.0, 5.3)  # periods of the slow yaw and pitch pan
 LENS_NEWTON_STEPS = 30
+LENSES = (PLUMB_BOB, EQUIDISTANT)
+MAX_FISHEYE_THETA = math.radians(85.0)  # rays drawn through the pinhole canvas
 
 
 @dataclass(frozen=True)
@@ -85,7 +96,11 @@ class FlightOptions:
 
     Attributes:
         seed: seeds the members, the noise, the JPEG qualities and the jitter.
-        dist: plumb_bob (k1, k2, p1, p2[, k3]); () = the ideal pinhole.
+        dist: plumb_bob (k1, k2, p1, p2[, k3]) or equidistant (k1, k2, k3, k4);
+            () = the ideal pinhole.
+        lens: the model of ``dist``, ``"plumb_bob"`` or ``"equidistant"``.
+        hfov_deg: the angle the principal row spans [deg], which sets the focal
+            length; None = the simulator's camera (``SimSettings.hfov_deg``).
         jpeg: (lowest, highest) JPEG quality per frame, or None (no JPEG).
         vibration_deg: RMS rotation jitter per camera axis [deg] (0 = none).
         pan_deg: amplitude of a slow yaw pan (pitch: 0.45 of it) that sweeps
@@ -101,6 +116,8 @@ class FlightOptions:
 
     seed: int = 0
     dist: tuple[float, ...] = ()
+    lens: str = PLUMB_BOB
+    hfov_deg: float | None = None
     jpeg: tuple[int, int] | None = None
     vibration_deg: float = 0.0
     pan_deg: float = 0.0
@@ -188,23 +205,94 @@ def undistort_normalized(xy_d: np.ndarray, dist) -> np.ndarray:
     return xy
 
 
-def raw_from_pinhole_px(k: np.ndarray, dist, uv: np.ndarray) -> np.ndarray:
+def _equidistant_coefficients(dist) -> np.ndarray:
+    d = [float(x) for x in dist]
+    if len(d) != 4:
+        raise ValueError(f"an equidistant lens takes 4 coefficients k1..k4, not {len(d)}")
+    return np.array(d)
+
+
+def theta_d(theta: np.ndarray, dist) -> np.ndarray:
+    """equidistant: a ray's angle from the axis [rad] to its distorted radius (f = 1)."""
+    k1, k2, k3, k4 = _equidistant_coefficients(dist)
+    t2 = np.square(theta)
+    return theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+
+
+def _theta_d_slope(theta: np.ndarray, dist) -> np.ndarray:
+    k1, k2, k3, k4 = _equidistant_coefficients(dist)
+    t2 = np.square(theta)
+    return 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+
+
+def theta_from_theta_d(r_d: np.ndarray, dist) -> np.ndarray:
+    """Inverse of ``theta_d`` by Newton steps; raises where it folds or passes 85 deg."""
+    r_d = np.asarray(r_d, dtype=float)
+    theta = r_d.copy()
+    for _ in range(LENS_NEWTON_STEPS):
+        theta -= (theta_d(theta, dist) - r_d) / _theta_d_slope(theta, dist)
+        theta = np.clip(theta, 0.0, math.pi)
+    worst = float(np.abs(theta_d(theta, dist) - r_d).max(initial=0.0))
+    if worst > 1e-12 or (_theta_d_slope(theta, dist) <= 0).any():
+        raise ValueError(f"lens {tuple(dist)} is not invertible over the image (residual {worst})")
+    if (theta > MAX_FISHEYE_THETA).any():
+        raise ValueError(f"lens {tuple(dist)} sees rays beyond 85 deg, which no canvas holds")
+    return theta
+
+
+def distort_equidistant(xy: np.ndarray, dist) -> np.ndarray:
+    """equidistant: (N, 2) ideal normalised points (x / z, y / z) to distorted ones."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    theta = np.arctan(r)
+    scale = np.where(r > 1e-12, theta_d(theta, dist) / np.maximum(r, 1e-300), 1.0)
+    return xy * scale[:, None]
+
+
+def undistort_equidistant(xy_d: np.ndarray, dist) -> np.ndarray:
+    """Inverse of ``distort_equidistant`` (a ray's angle by ``theta_from_theta_d``)."""
+    xy_d = np.asarray(xy_d, dtype=float).reshape(-1, 2)
+    r_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
+    r = np.tan(theta_from_theta_d(r_d, dist))
+    scale = np.where(r_d > 1e-12, r / np.maximum(r_d, 1e-300), 1.0)
+    return xy_d * scale[:, None]
+
+
+def _distort(xy: np.ndarray, dist, lens: str) -> np.ndarray:
+    return distort_equidistant(xy, dist) if lens == EQUIDISTANT else distort_normalized(xy, dist)
+
+
+def _undistort(xy: np.ndarray, dist, lens: str) -> np.ndarray:
+    if lens == EQUIDISTANT:
+        return undistort_equidistant(xy, dist)
+    return undistort_normalized(xy, dist)
+
+
+def raw_from_pinhole_px(k: np.ndarray, dist, uv: np.ndarray, lens: str = PLUMB_BOB) -> np.ndarray:
     """(N, 2) pinhole pixels of intrinsics ``k`` to raw pixels through the lens."""
     xy = (np.asarray(uv, float).reshape(-1, 2) - k[:2, 2]) / [k[0, 0], k[1, 1]]
-    return distort_normalized(xy, dist) * [k[0, 0], k[1, 1]] + k[:2, 2]
+    return _distort(xy, dist, lens) * [k[0, 0], k[1, 1]] + k[:2, 2]
 
 
-def pinhole_from_raw_px(k: np.ndarray, dist, uv: np.ndarray) -> np.ndarray:
+def pinhole_from_raw_px(k: np.ndarray, dist, uv: np.ndarray, lens: str = PLUMB_BOB) -> np.ndarray:
     """(N, 2) raw pixels to the pinhole pixels of intrinsics ``k`` (this script's inverse)."""
     xy = (np.asarray(uv, float).reshape(-1, 2) - k[:2, 2]) / [k[0, 0], k[1, 1]]
-    return undistort_normalized(xy, dist) * [k[0, 0], k[1, 1]] + k[:2, 2]
+    return _undistort(xy, dist, lens) * [k[0, 0], k[1, 1]] + k[:2, 2]
 
 
-def make_lens(k: np.ndarray, dist, width: int, height: int, margin_px: int = 4) -> Lens:
+def fisheye_focal_px(width: int, hfov_deg: float, dist) -> float:
+    """The focal [px] at which an equidistant lens's principal row spans ``hfov_deg``:
+    the centres of its first and last pixels see rays at +-hfov / 2."""
+    return ((width - 1) / 2.0) / float(theta_d(np.radians(hfov_deg) / 2.0, dist))
+
+
+def make_lens(
+    k: np.ndarray, dist, width: int, height: int, margin_px: int = 4, lens: str = PLUMB_BOB
+) -> Lens:
     """The canvas a raw image of ``width`` x ``height`` through the lens needs, and its map."""
     vv, uu = np.mgrid[0:height, 0:width]
     raw = np.stack([uu.ravel(), vv.ravel()], axis=1).astype(float)
-    ideal = pinhole_from_raw_px(k, dist, raw)
+    ideal = pinhole_from_raw_px(k, dist, raw, lens)
     x0, y0 = np.floor(ideal.min(axis=0)).astype(int) - margin_px
     x1, y1 = np.ceil(ideal.max(axis=0)).astype(int) + margin_px
     canvas_k = np.array(k, dtype=float)
@@ -382,7 +470,12 @@ def render_frame(
 
 
 def signs_in_view(
-    signs, k: np.ndarray, dist, world_T_cam: np.ndarray, size: tuple[int, int]
+    signs,
+    k: np.ndarray,
+    dist,
+    world_T_cam: np.ndarray,
+    size: tuple[int, int],
+    lens: str = PLUMB_BOB,
 ) -> list[dict]:
     """Every sign facing the camera in front of it: code, raw centre, box, diameter and
     every keypoint of the map's sign [px].
@@ -405,7 +498,7 @@ def signs_in_view(
         cam = np.vstack([c_cam, rim @ r_cw.T + t_cw, np.array(points) @ r_cw.T + t_cw])
         if (cam[:, 2] < 0.5).any():
             continue
-        px = raw_from_pinhole_px(k, dist, (cam @ k.T)[:, :2] / cam[:, 2:])
+        px = raw_from_pinhole_px(k, dist, (cam @ k.T)[:, :2] / cam[:, 2:], lens)
         lo, hi = px[1 : 1 + RIM_POINTS].min(axis=0), px[1 : 1 + RIM_POINTS].max(axis=0)
         keypoints = {
             n: [round(float(v), 4) for v in p]
@@ -473,7 +566,7 @@ def _jpeg(gray: np.ndarray, quality: int) -> np.ndarray:
 def _scene(sign_map: SignMap, o: FlightOptions, camera, size) -> dict:
     w, h = size
     rng = np.random.default_rng(o.seed)
-    lens = make_lens(camera.K, o.dist, w, h) if any(o.dist) else None
+    lens = make_lens(camera.K, o.dist, w, h, lens=o.lens) if any(o.dist) else None
     return {
         "panorama": _panorama(h if lens is None else max(h, lens.canvas_size[1])),
         "signs": [s for s in sign_map.signs if s.oriented],
@@ -482,6 +575,31 @@ def _scene(sign_map: SignMap, o: FlightOptions, camera, size) -> dict:
         "lens": lens,
         "truth": o.truth,
     }
+
+
+def flight_camera(o: FlightOptions, width: int, height: int) -> CameraModel:
+    """The camera a flight is drawn through (camera.yaml): the simulator's intrinsics, or
+    the focal ``o.hfov_deg`` asks for, with ``o``'s lens.
+
+    Raises:
+        ValueError: a lens model this script does not draw, or the wrong coefficients.
+    """
+    settings = SimSettings(width=width, height=height)
+    camera = replace(simulated_camera(settings), dist=np.zeros(5), name="independent")
+    if o.lens not in LENSES:
+        raise ValueError(f"lens '{o.lens}' is not one of {', '.join(LENSES)}")
+    if o.hfov_deg is not None:
+        f = (
+            fisheye_focal_px(width, o.hfov_deg, o.dist)
+            if o.lens == EQUIDISTANT
+            else ((width - 1) / 2.0) / math.tan(math.radians(o.hfov_deg) / 2.0)
+        )
+        camera.K[0, 0] = camera.K[1, 1] = f
+    if o.lens == EQUIDISTANT:
+        camera = replace(camera, dist=_equidistant_coefficients(o.dist), model=EQUIDISTANT)
+    elif any(o.dist):
+        camera = replace(camera, dist=np.array(_coefficients(o.dist)))
+    return camera
 
 
 def write_flight(
@@ -501,9 +619,7 @@ def write_flight(
     out = ensure_dir(out_dir)
     sign_map = load_map(o.map_path or bundled_map_path())
     settings = SimSettings(frames=frames, width=width, height=height, seed=seed)
-    camera = replace(simulated_camera(settings), dist=np.zeros(5), name="independent")
-    if any(o.dist):
-        camera = replace(camera, dist=np.array(_coefficients(o.dist)))
+    camera = flight_camera(o, width, height)
     traj = make_trajectory(
         o.trajectory,
         sign_map,
@@ -532,7 +648,7 @@ def write_flight(
                 writer.write(cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR))
                 if o.truth:
                     seen = signs_in_view(
-                        scene["signs"], camera.K, o.dist, world_T_cam, (width, height)
+                        scene["signs"], camera.K, o.dist, world_T_cam, (width, height), o.lens
                     )
                     truth.append(_truth_line(i, seen, shares, q))
         finally:
@@ -562,6 +678,8 @@ def options_from_args(args: argparse.Namespace) -> FlightOptions:
     return FlightOptions(
         seed=args.seed,
         dist=tuple(args.distortion or ()),
+        lens=args.lens,
+        hfov_deg=args.hfov,
         jpeg=tuple(args.jpeg) if args.jpeg else None,
         vibration_deg=args.vibration,
         pan_deg=args.pan,
@@ -582,7 +700,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--width", type=int, default=1920)
     ap.add_argument("--height", type=int, default=1080)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--distortion", type=float, nargs="+", metavar="K", help="k1 k2 p1 p2 [k3]")
+    ap.add_argument(
+        "--distortion", type=float, nargs="+", metavar="K",
+        help="plumb_bob: k1 k2 p1 p2 [k3]; equidistant: k1 k2 k3 k4",
+    )  # fmt: skip
+    ap.add_argument("--lens", choices=LENSES, default=PLUMB_BOB, help="the model of --distortion")
+    ap.add_argument(
+        "--hfov", type=float, default=None,
+        help="angle the principal row spans [deg] (sets the focal; default: the simulator's)",
+    )  # fmt: skip
     ap.add_argument("--jpeg", type=int, nargs=2, metavar=("LO", "HI"), help="JPEG quality range")
     ap.add_argument("--vibration", type=float, default=0.0, help="rotation jitter, deg RMS/axis")
     ap.add_argument("--pan", type=float, default=0.0, help="slow yaw pan amplitude [deg]")
@@ -594,11 +720,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--wobble-seed", type=int, default=0)
     ap.add_argument("--truth", action="store_true", help="also write truth.jsonl")
     args = ap.parse_args(argv)
-    print(
-        write_flight(
-            args.out, args.frames, args.width, args.height, args.seed, options_from_args(args)
-        )
-    )
+    options = options_from_args(args)
+    try:
+        flight_camera(options, args.width, args.height)
+    except ValueError as e:
+        print(f"independent_flight: {e}", file=sys.stderr)
+        return 2
+    print(write_flight(args.out, args.frames, args.width, args.height, args.seed, options))
     return 0
 
 

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from signpose.estimator.camera import pixel_from_world_point, undistort_px
+from signpose.estimator.camera import pixel_from_cam_point, pixel_from_world_point, undistort_px
 from signpose.estimator.trajectory import rotation_from_quat_xyzw
 from signpose.maps.loader import bundled_map_path, load_map
 
 from signpose.cli import main as signpose
-from signpose.io.camera_file import load_camera
+from signpose.io.camera_file import load_camera, write_camera_info
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 LENS = (-0.33, 0.12, -0.0004, 0.0003)
@@ -181,3 +181,98 @@ def test_a_dropped_unhidden_sign_is_missed_and_decodes_on_its_true_box(scripts, 
     reasons = eval_flight.missed_reasons(out, truth, after, load_map(bundled_map_path()).codes)
     assert reasons.get("decoded on its true box", 0) >= 1
     assert sum(reasons.values()) == sum(m[3] == 0.0 for m in after.missed)
+
+
+# --------------------------------------------------------------------------- a fisheye lens
+
+FISHEYE = (-0.012, 0.021, -0.019, 0.0072)  # eval_flight's "fisheye" flight's lens
+FISHEYE_SIZE = (1280, 720)
+FISHEYE_HFOV_DEG = 120.0
+
+
+@pytest.fixture(scope="module")
+def fisheye_camera(scripts, tmp_path_factory):
+    """(camera as drawn, camera read back by signpose from the camera.yaml written for it)."""
+    independent_flight, _ = scripts
+    options = independent_flight.FlightOptions(
+        dist=FISHEYE, lens="equidistant", hfov_deg=FISHEYE_HFOV_DEG
+    )
+    drawn = independent_flight.flight_camera(options, *FISHEYE_SIZE)
+    path = tmp_path_factory.mktemp("fisheye") / "camera.yaml"
+    write_camera_info(path, drawn)
+    return drawn, load_camera(path)
+
+
+def _raw_grid(size: tuple[int, int], step: int) -> np.ndarray:
+    """Raw pixels every ``step`` px, the four corner pixels included."""
+    w, h = size
+    uu, vv = np.meshgrid([*range(0, w, step), w - 1], [*range(0, h, step), h - 1])
+    return np.stack([uu.ravel(), vv.ravel()], axis=1).astype(float)
+
+
+def test_the_fisheye_lens_round_trips_through_signposts_reader_to_the_corners(
+    scripts, fisheye_camera
+):
+    """A pinhole pixel distorted by the drawing's own equidistant model and undistorted by
+    signpose (cv2.fisheye, the camera.yaml read back) comes back within 0.05 px, corners too."""
+    independent_flight, _ = scripts
+    drawn, camera = fisheye_camera
+    assert camera.model == "equidistant"
+    assert np.allclose(camera.dist, FISHEYE) and np.allclose(camera.K, drawn.K)
+    raw_grid = _raw_grid(FISHEYE_SIZE, 40)
+    ideal = independent_flight.pinhole_from_raw_px(camera.K, FISHEYE, raw_grid, "equidistant")
+    raw = independent_flight.raw_from_pinhole_px(camera.K, FISHEYE, ideal, "equidistant")
+    assert np.abs(raw - raw_grid).max() < 1e-6  # the drawing's own inverse
+    assert np.abs(ideal - raw).max() > 500  # the corners move by hundreds of pixels
+    back = undistort_px(camera, raw)
+    err = np.linalg.norm(back - ideal, axis=1)
+    corners = (raw_grid[:, 0] % (FISHEYE_SIZE[0] - 1) == 0) & (
+        raw_grid[:, 1] % (FISHEYE_SIZE[1] - 1) == 0
+    )
+    assert corners.sum() == 4
+    assert err[corners].max() < 0.05
+    assert err.max() < 0.05
+    # ... and signpose's projection of the undistorted point lands on the raw pixel.
+    cam = np.column_stack([(ideal - camera.K[:2, 2]) / camera.K[0, 0], np.ones(len(ideal))])
+    assert np.abs(pixel_from_cam_point(camera, cam) - raw).max() < 0.05
+
+
+def test_the_fisheye_spans_the_field_of_view_asked_for(fisheye_camera):
+    """The rays signpose undistorts the principal row's end pixels to are hfov apart; the
+    corners see beyond 65 deg (a real wide-angle lens, not a pinhole)."""
+    _, camera = fisheye_camera
+    w, h = FISHEYE_SIZE
+    ends = np.array([[0.0, camera.cy], [w - 1.0, camera.cy]])
+    x = (undistort_px(camera, ends)[:, 0] - camera.cx) / camera.fx
+    assert np.degrees(np.arctan(x[1]) - np.arctan(x[0])) == pytest.approx(
+        FISHEYE_HFOV_DEG, abs=0.01
+    )
+    corner = (undistort_px(camera, np.array([[0.0, 0.0]]))[0] - camera.K[:2, 2]) / camera.fx
+    assert np.degrees(np.arctan(np.hypot(*corner))) > 65.0
+
+
+def test_the_fisheye_canvas_is_sampled_where_signpose_undistorts(scripts, fisheye_camera):
+    """Each raw pixel of a fisheye frame samples the pinhole canvas where signpose's
+    undistortion puts it (the drawing's remap map against cv2.fisheye)."""
+    independent_flight, _ = scripts
+    _, camera = fisheye_camera
+    lens = independent_flight.make_lens(camera.K, FISHEYE, *FISHEYE_SIZE, lens="equidistant")
+    raw = _raw_grid(FISHEYE_SIZE, 23).astype(int)
+    offset = lens.canvas_K[:2, 2] - camera.K[:2, 2]
+    sampled = np.stack([lens.map_x[raw[:, 1], raw[:, 0]], lens.map_y[raw[:, 1], raw[:, 0]]], 1)
+    assert np.abs(sampled - offset - undistort_px(camera, raw.astype(float))).max() < 0.05
+
+
+def test_a_lens_the_drawing_cannot_hold_is_refused(scripts):
+    """Coefficients of the wrong count, or a fisheye whose corners see past 85 deg: an error,
+    not a silently wrong drawing (the script exits 2 with one line)."""
+    independent_flight, _ = scripts
+    wrong = independent_flight.FlightOptions(dist=(0.1, 0.2), lens="equidistant", hfov_deg=120)
+    with pytest.raises(ValueError, match="4 coefficients"):
+        independent_flight.flight_camera(wrong, *FISHEYE_SIZE)
+    wide = independent_flight.FlightOptions(dist=FISHEYE, lens="equidistant", hfov_deg=170)
+    camera = independent_flight.flight_camera(wide, *FISHEYE_SIZE)
+    with pytest.raises(ValueError, match="85 deg"):
+        independent_flight.make_lens(camera.K, FISHEYE, *FISHEYE_SIZE, lens="equidistant")
+    argv = ["/nonexistent", "--lens", "equidistant", "--distortion", "0.1", "0.2"]
+    assert independent_flight.main(argv) == 2
