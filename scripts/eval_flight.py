@@ -38,15 +38,17 @@ box in raw pixels through the lens, the share of its disc hidden):
   true pixel, estimated against the same map: the estimator's share of an error.
 
     nice -n 5 .venv/bin/python scripts/eval_flight.py [--quick] [--work DIR] [--json PATH]
-        [--flights NAME ...] [--fisheye] [--without lens jpeg vibration pan members] [--surveys K]
+        [--flights NAME ...] [--wide] [--without lens jpeg vibration pan members] [--surveys K]
         [--drop-lens-model] [--oracle] [--why-missed] [--rerun]
 
-``--fisheye`` (or ``--flights fisheye hd_fisheye_orbit``) adds two flights
-through a wide-angle / fisheye lens (the equidistant model, camera.yaml a ROS
-camera_info with ``distortion_model: equidistant``, drawn by
-independent_flight.py's own model, not cv2.fisheye): 120 deg across at
-1280x720 (lawnmower at 7 m) and 125 deg at 1920x1080 (orbit at 8 m); not in the
-default set, as their pinhole canvases are 2-3x the image's.
+``--wide`` (or ``--flights fisheye hd_fisheye_orbit action_cam``) adds three
+flights through wide-angle lenses: two fisheyes (the equidistant model,
+camera.yaml a ROS camera_info with ``distortion_model: equidistant``, drawn by
+independent_flight.py's own model, not cv2.fisheye), 120 deg across at
+1280x720 (lawnmower at 7 m) and 125 deg at 1920x1080 (orbit at 8 m), and a
+cheap action camera (plumb_bob k1 -0.28 with k2, k3 and p1, p2 of 1e-3, 100 deg
+across at 1280x720); not in the default set, as the fisheyes' pinhole canvases
+are 2-3x the image's.
 
 The default set (4 flights of 240 frames at 1280x720 and one of 150 at
 1920x1080) took 12 min wall, 4.3 min CPU, on the shared 2-core machine at
@@ -147,10 +149,11 @@ DEFAULT_SET = (
         note="1920x1080 climb-hover-depart, k1 -0.35, JPEG, vibration 0.3, pan 22 deg",
     ),
 )  # fmt: skip
-# Wide-angle / fisheye lenses (the equidistant model of Kalibr's and ROS's files,
-# coefficients of the magnitudes real calibrations write): not in the default set
-# (their canvases are 2-3x the image's), run with --fisheye or by name.
-FISHEYE_SET = (
+# Wide-angle lenses: two fisheyes (the equidistant model of Kalibr's and ROS's
+# files, coefficients of the magnitudes real calibrations write) and a cheap action
+# camera (plumb_bob with k3 and decentring p1, p2): not in the default set (the
+# fisheyes' canvases are 2-3x the image's), run with --wide or by name.
+WIDE_SET = (
     FlightSpec(
         "fisheye", 240, 1280, 720,
         FlightOptions(seed=21, dist=(-0.012, 0.021, -0.019, 0.0072), lens="equidistant",
@@ -165,8 +168,16 @@ FISHEYE_SET = (
                       trajectory="orbit", speed_mps=3.0, distance_m=8.0, wobble_seed=22),
         note="1920x1080 equidistant lens, 125 deg across, orbit 3 m/s at 8 m, JPEG, pan 25",
     ),
+    FlightSpec(
+        "action_cam", 240, 1280, 720,
+        FlightOptions(seed=23, dist=(-0.28, 0.085, 0.0012, -0.0009, -0.011), hfov_deg=100.0,
+                      jpeg=(60, 85), vibration_deg=0.4, pan_deg=22.0, speed_mps=1.55,
+                      distance_m=9.0, wobble_seed=23),
+        note="cheap action camera: plumb_bob k1 -0.28 k2 0.085 k3 -0.011, p1 0.0012 p2 -0.0009, "
+        "100 deg across, climb-hover-depart at 9 m, JPEG 60-85, vibration 0.4, pan 22",
+    ),
 )  # fmt: skip
-ALL_SETS = DEFAULT_SET + FISHEYE_SET
+ALL_SETS = DEFAULT_SET + WIDE_SET
 QUICK_SET = (replace(DEFAULT_SET[1], frames=60), replace(DEFAULT_SET[2], frames=60))
 # What --without takes off every flight (to see which condition a defect needs).
 ABLATIONS = {
@@ -938,8 +949,8 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME", help="run these flights: " + ", ".join(s.name for s in ALL_SETS),
     )  # fmt: skip
     ap.add_argument(
-        "--fisheye", action="store_true",
-        help="add the fisheye flights (" + ", ".join(s.name for s in FISHEYE_SET) + ")",
+        "--wide", action="store_true",
+        help="add the wide-angle flights (" + ", ".join(s.name for s in WIDE_SET) + ")",
     )  # fmt: skip
     ap.add_argument("--work", type=Path, default=None, help="keep the flights here (reused)")
     ap.add_argument("--rerun", action="store_true", help="draw and run again even if cached")
@@ -966,8 +977,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     specs = QUICK_SET if args.quick else DEFAULT_SET
-    if args.fisheye:
-        specs = specs + FISHEYE_SET
+    if args.wide:
+        specs = specs + WIDE_SET
     if args.flights:
         pool = {s.name: s for s in ALL_SETS} | {s.name: s for s in specs}
         specs = tuple(pool[n] for n in dict.fromkeys(args.flights))

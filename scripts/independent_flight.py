@@ -99,8 +99,9 @@ class FlightOptions:
         dist: plumb_bob (k1, k2, p1, p2[, k3]) or equidistant (k1, k2, k3, k4);
             () = the ideal pinhole.
         lens: the model of ``dist``, ``"plumb_bob"`` or ``"equidistant"``.
-        hfov_deg: the angle the principal row spans [deg], which sets the focal
-            length; None = the simulator's camera (``SimSettings.hfov_deg``).
+        hfov_deg: the angle the principal row spans [deg] through the lens, which
+            sets the focal length (plumb_bob with p1, p2: to a few tenths of a
+            degree); None = the simulator's camera (``SimSettings.hfov_deg``).
         jpeg: (lowest, highest) JPEG quality per frame, or None (no JPEG).
         vibration_deg: RMS rotation jitter per camera axis [deg] (0 = none).
         pan_deg: amplitude of a slow yaw pan (pitch: 0.45 of it) that sweeps
@@ -589,11 +590,12 @@ def flight_camera(o: FlightOptions, width: int, height: int) -> CameraModel:
     if o.lens not in LENSES:
         raise ValueError(f"lens '{o.lens}' is not one of {', '.join(LENSES)}")
     if o.hfov_deg is not None:
-        f = (
-            fisheye_focal_px(width, o.hfov_deg, o.dist)
-            if o.lens == EQUIDISTANT
-            else ((width - 1) / 2.0) / math.tan(math.radians(o.hfov_deg) / 2.0)
-        )
+        half = math.radians(o.hfov_deg) / 2.0
+        if o.lens == EQUIDISTANT:
+            f = fisheye_focal_px(width, o.hfov_deg, o.dist)
+        else:  # the ray at hfov / 2 lands on the last pixel (tangential terms: nearly)
+            x_d = distort_normalized(np.array([[math.tan(half), 0.0]]), o.dist)[0, 0]
+            f = ((width - 1) / 2.0) / float(x_d)
         camera.K[0, 0] = camera.K[1, 1] = f
     if o.lens == EQUIDISTANT:
         camera = replace(camera, dist=_equidistant_coefficients(o.dist), model=EQUIDISTANT)

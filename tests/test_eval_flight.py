@@ -276,3 +276,24 @@ def test_a_lens_the_drawing_cannot_hold_is_refused(scripts):
         independent_flight.make_lens(camera.K, FISHEYE, *FISHEYE_SIZE, lens="equidistant")
     argv = ["/nonexistent", "--lens", "equidistant", "--distortion", "0.1", "0.2"]
     assert independent_flight.main(argv) == 2
+
+
+def test_the_action_cams_lens_round_trips_and_spans_its_field_of_view(scripts, tmp_path):
+    """The cheap action camera's plumb_bob (k1..k3 and p1, p2) at 100 deg across: drawn and
+    undistorted by signpose within 0.05 px to the corners, the principal row ~100 deg."""
+    independent_flight, eval_flight = scripts
+    spec = next(s for s in eval_flight.WIDE_SET if s.name == "action_cam")
+    dist = spec.options.dist
+    drawn = independent_flight.flight_camera(spec.options, spec.width, spec.height)
+    write_camera_info(tmp_path / "camera.yaml", drawn)
+    camera = load_camera(tmp_path / "camera.yaml")
+    assert camera.model == "plumb_bob" and np.allclose(camera.dist, dist)
+    raw_grid = _raw_grid((spec.width, spec.height), 40)
+    ideal = independent_flight.pinhole_from_raw_px(camera.K, dist, raw_grid)
+    raw = independent_flight.raw_from_pinhole_px(camera.K, dist, ideal)
+    assert np.abs(raw - raw_grid).max() < 1e-6
+    assert np.abs(ideal - raw).max() > 200
+    assert np.abs(undistort_px(camera, raw) - ideal).max() < 0.05
+    ends = np.array([[0.0, camera.cy], [spec.width - 1.0, camera.cy]])
+    x = (undistort_px(camera, ends)[:, 0] - camera.cx) / camera.fx
+    assert np.degrees(np.arctan(x[1]) - np.arctan(x[0])) == pytest.approx(100.0, abs=0.5)
