@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -135,6 +136,13 @@ def test_camera_mistakes_change_only_what_they_say(faults, camera, tmp_path):
     assert (hd.width, hd.height) == (1920, 1080)
     assert (hd.fx, hd.cx) == pytest.approx((1.5 * camera.fx, 1.5 * camera.cx))
     np.testing.assert_array_equal(hd.dist, camera.dist)
+
+
+def test_most_seen_breaks_ties_by_code(faults):
+    seen = Counter({"1001": 120, "0110": 120, "0101": 120, "1100": 87, "0011": 200})
+    assert faults.most_seen(seen, ("0101", "0110", "1001", "1100")) == (
+        "0101", "0110", "1001", "1100",
+    )  # fmt: skip
 
 
 def test_verdicts(faults):
