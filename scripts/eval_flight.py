@@ -78,6 +78,7 @@ import numpy as np
 from eval_pose_sigma import surveyed_map
 from independent_flight import FlightOptions
 from independent_flight import main as draw_flight
+from signpose.estimator.trajectory import rotation_from_quat_xyzw
 from signpose.frontend.decoder import decode_region
 from signpose.maps.loader import MapSign, SignMap, bundled_map_path, load_map, write_map
 
@@ -95,6 +96,9 @@ ORACLE_NAME = "observations_oracle.jsonl"
 SURVEY_KEYS = ("surveys", "surveys_oracle")
 # Share of a sign's disc an occluder hides: (name, above, at most).
 HIDDEN_BINS = (("none", -1.0, 0.0), ("<=10%", 0.0, 0.1), ("10-25%", 0.1, 0.25), (">25%", 0.25, 1.0))
+# Angle between the camera's axis and the ray to a sign's centre [deg] (a wide lens's
+# edges): the unhidden signs' recall and keypoint honesty per bin (lo < angle <= hi).
+OFF_AXIS_BINS_DEG = (0.0, 30.0, 45.0, 55.0, 90.0)
 
 
 @dataclass(frozen=True)
@@ -157,16 +161,16 @@ WIDE_SET = (
     FlightSpec(
         "fisheye", 240, 1280, 720,
         FlightOptions(seed=21, dist=(-0.012, 0.021, -0.019, 0.0072), lens="equidistant",
-                      hfov_deg=120.0, jpeg=(70, 90), vibration_deg=0.2, pan_deg=20.0,
+                      hfov_deg=120.0, jpeg=(70, 90), vibration_deg=0.2, pan_deg=50.0,
                       trajectory="lawnmower", speed_mps=2.0, distance_m=7.0, wobble_seed=21),
-        note="equidistant lens, 120 deg across, lawnmower at 7 m, JPEG, vibration 0.2, pan 20",
+        note="equidistant lens, 120 deg across, lawnmower at 7 m, JPEG, vibration 0.2, pan 50 deg",
     ),
     FlightSpec(
         "hd_fisheye_orbit", 150, 1920, 1080,
         FlightOptions(seed=22, dist=(0.028, -0.011, 0.002, -0.0003), lens="equidistant",
-                      hfov_deg=125.0, jpeg=(70, 90), vibration_deg=0.3, pan_deg=25.0,
+                      hfov_deg=125.0, jpeg=(70, 90), vibration_deg=0.3, pan_deg=55.0,
                       trajectory="orbit", speed_mps=3.0, distance_m=8.0, wobble_seed=22),
-        note="1920x1080 equidistant lens, 125 deg across, orbit 3 m/s at 8 m, JPEG, pan 25",
+        note="1920x1080 equidistant lens, 125 deg across, orbit 3 m/s at 8 m, JPEG, pan 55 deg",
     ),
     FlightSpec(
         "action_cam", 240, 1280, 720,
@@ -341,11 +345,16 @@ class CodeCheck:
             off their normal (not counted in the recall).
         visible_unhidden: those of them no occluder touches.
         visible_hidden: the share of the disc hidden of each visible sign.
-        missed: (frame, code, diameter [px], hidden share) of those not observed.
+        missed: (frame, code, diameter [px], hidden share, off-axis angle [deg]) of
+            those not observed.
+        visible_off_axis: the off-axis angle [deg] of each visible sign (the angle
+            between the camera's axis and the ray to its centre; 0 unless the
+            truth says).
         keypoints: kind ("center", "direction", "slot") -> rows of (error / its
             sigma u, v, error u, v [px], hidden share of the sign, error along
             the radius from the image centre [px], that radius over the half
-            diagonal) of the right codes' keypoints, raw pixels.
+            diagonal, the sign's off-axis angle [deg]) of the right codes'
+            keypoints, raw pixels.
     """
 
     observed: int = 0
@@ -353,6 +362,7 @@ class CodeCheck:
     visible: int = 0
     visible_unhidden: int = 0
     visible_hidden: list[float] = field(default_factory=list)
+    visible_off_axis: list[float] = field(default_factory=list)
     oblique: int = 0
     missed: list[tuple] = field(default_factory=list)
     keypoints: dict[str, list] = field(default_factory=dict)
@@ -376,6 +386,7 @@ def _keypoint_rows(o: dict, t: dict, size: tuple[int, int], check: CodeCheck) ->
         r_len = float(np.hypot(*r))
         radial = float(err @ r / r_len) if r_len > 0 else 0.0
         row = (*(err / sigma), *err, t.get("hidden", 0.0), radial, r_len / half_diagonal)
+        row = (*row, t.get("off_axis_deg", 0.0))
         check.keypoints.setdefault(_kind(name), []).append(row)
 
 
@@ -410,23 +421,41 @@ def check_frame(obs: dict, truth: dict, check: CodeCheck) -> None:
             check.visible += 1
             check.visible_unhidden += t["hidden"] == 0.0
             check.visible_hidden.append(t["hidden"])
+            check.visible_off_axis.append(t.get("off_axis_deg", 0.0))
             if t["code"] not in seen:
-                check.missed.append((obs["frame"], t["code"], t["diameter_px"], t["hidden"]))
+                check.missed.append(
+                    (
+                        obs["frame"],
+                        t["code"],
+                        t["diameter_px"],
+                        t["hidden"],
+                        t.get("off_axis_deg", 0.0),
+                    )
+                )
 
 
 def with_incidence(truth: list[dict], sign_map: SignMap, gt: np.ndarray) -> list[dict]:
     """``truth`` with each sign's ``incidence_deg``: the angle between its normal and the
-    line from its centre to the camera (frames by index into the ground truth)."""
+    line from its centre to the camera, and ``off_axis_deg``: the angle between the
+    camera's axis and that line (frames by index into the ground truth)."""
     signs = {s.code: s for s in sign_map.signs}
     out = []
     for t in truth:
         centre = gt[t["frame"], 1:4]
+        axis = rotation_from_quat_xyzw(gt[t["frame"], 4:8])[0][:, 2]
         seen = []
         for s in t["signs"]:
             sign = signs[s["code"]]
             ray = centre - sign.center_m
             cos = float(ray @ sign.normal / np.linalg.norm(ray))
-            seen.append(s | {"incidence_deg": math.degrees(math.acos(min(max(cos, -1), 1)))})
+            cos_axis = float(-ray @ axis / np.linalg.norm(ray))
+            seen.append(
+                s
+                | {
+                    "incidence_deg": math.degrees(math.acos(min(max(cos, -1), 1))),
+                    "off_axis_deg": math.degrees(math.acos(min(max(cos_axis, -1), 1))),
+                }
+            )
         out.append(t | {"signs": seen})
     return out
 
@@ -449,8 +478,13 @@ def keypoint_summary(check: CodeCheck) -> dict[str, dict]:
     in the outer half of the image (a lens model's bias shows there)."""
     out = {}
     for kind, rows in sorted(check.keypoints.items()):
-        a = np.asarray(rows, float).reshape(-1, 7)
+        a = np.asarray(rows, float).reshape(-1, 8)
         z, e, clear, outer = a[:, :2], a[:, 2:4], a[:, 4] == 0.0, a[:, 6] > 0.5
+        by_angle = {}
+        for lo, hi in zip(OFF_AXIS_BINS_DEG, OFF_AXIS_BINS_DEG[1:], strict=False):
+            sel = clear & (a[:, 7] > lo) & (a[:, 7] <= hi) if hi < 90 else clear & (a[:, 7] > lo)
+            rms = np.sqrt(np.mean(z[sel] ** 2, axis=0)).round(3).tolist() if sel.any() else None
+            by_angle[f"{lo:g}-{hi:g}deg"] = [int(sel.sum()), rms]
         out[kind] = {
             "n": len(a),
             "rms_z_uv": np.sqrt(np.mean(z**2, axis=0)).round(3).tolist(),
@@ -461,6 +495,7 @@ def keypoint_summary(check: CodeCheck) -> dict[str, dict]:
             "beyond_3sigma": round(float((np.abs(z) > 3).any(axis=1).mean()), 4),
             "n_outer": int(outer.sum()),
             "radial_bias_outer_px": round(float(a[outer, 5].mean()), 4) if outer.any() else None,
+            "rms_z_uv_unhidden_by_off_axis": by_angle,
         }
     return out
 
@@ -470,6 +505,19 @@ def _recall(hidden: list[float], missed: list[tuple], lo: float, hi: float) -> l
     n = sum(lo < h <= hi for h in hidden)
     found = n - sum(lo < m[3] <= hi for m in missed)
     return [n, found, round(found / n, 3) if n else None]
+
+
+def _recall_off_axis(check: CodeCheck) -> dict[str, list]:
+    """[visible, found, recall] of the unhidden signs per off-axis bin."""
+    out = {}
+    for lo, hi in zip(OFF_AXIS_BINS_DEG, OFF_AXIS_BINS_DEG[1:], strict=False):
+        n = sum(
+            h == 0.0 and lo < a <= hi
+            for h, a in zip(check.visible_hidden, check.visible_off_axis, strict=True)
+        )
+        found = n - sum(m[3] == 0.0 and lo < m[4] <= hi for m in check.missed)
+        out[f"{lo:g}-{hi:g}deg"] = [n, found, round(found / n, 3) if n else None]
+    return out
 
 
 def code_summary(check: CodeCheck) -> dict:
@@ -495,6 +543,7 @@ def code_summary(check: CodeCheck) -> dict:
             for name, lo, hi in HIDDEN_BINS
         },
         "visible_unhidden": check.visible_unhidden,
+        "recall_unhidden_by_off_axis": _recall_off_axis(check),
         "oblique": check.oblique,
     }
 
@@ -697,7 +746,7 @@ def missed_reasons(flight: Path, truth: list[dict], check: CodeCheck, codes) -> 
     """Each unhidden sign the run missed, decoded alone on its true box: "decoded on its
     true box" (the detector or the tracker lost it) or the decoder's reason to refuse it."""
     want: dict[int, list[str]] = {}
-    for frame, code, _, hidden in check.missed:
+    for frame, code, _, hidden, _ in check.missed:
         if hidden == 0.0:
             want.setdefault(frame, []).append(code)
     reasons: dict[str, int] = {}
@@ -823,7 +872,8 @@ def print_flight(r: dict) -> None:
         f"{c['oblique']} more further off, not counted; unhidden "
         f"{c['visible_unhidden']}), missed {c['missed']}, recall {_fmt(c['recall'], '.1%')}; "
         f"missed by size {c['missed_by_size']};\n  recall by hidden share [visible, found, "
-        f"recall] {c['recall_by_hidden']}"
+        f"recall] {c['recall_by_hidden']}\n  unhidden recall by off-axis angle [visible, found, "
+        f"recall] {c.get('recall_unhidden_by_off_axis')}"
     )
     for w in c["wrong_list"][:10]:
         print(f"    wrong: frame {w[0]} code {w[1]} box {w[2]} px: {w[3]}")
@@ -833,6 +883,10 @@ def print_flight(r: dict) -> None:
             f"{v['rms_z_uv_unhidden']}), rms error {v['rms_err_px_uv']} px, beyond 3 sigma "
             f"{100 * v['beyond_3sigma']:.1f}%, radial bias (outer half, n {v['n_outer']}) "
             f"{_fmt(v['radial_bias_outer_px'], '+.3f')} px"
+        )
+        print(
+            f"    unhidden by off-axis angle [n, rms(e/sigma) u v] "
+            f"{v.get('rms_z_uv_unhidden_by_off_axis')}"
         )
     _print_methods(r["methods"])
     if "missed_unhidden_why" in r:

@@ -297,3 +297,24 @@ def test_the_action_cams_lens_round_trips_and_spans_its_field_of_view(scripts, t
     ends = np.array([[0.0, camera.cy], [spec.width - 1.0, camera.cy]])
     x = (undistort_px(camera, ends)[:, 0] - camera.cx) / camera.fx
     assert np.degrees(np.arctan(x[1]) - np.arctan(x[0])) == pytest.approx(100.0, abs=0.5)
+
+
+def test_the_off_axis_angle_is_where_the_lens_puts_the_sign(scripts, flight):
+    """Each drawn sign's off-axis angle (from the ground-truth pose and the map) is the angle
+    of the ray signpose undistorts its true raw centre to; the unhidden recall's bins hold
+    every unhidden visible sign."""
+    _, eval_flight = scripts
+    out, obs = flight
+    camera = load_camera(out / "camera.yaml")
+    gt = eval_flight.read_gt(out / "groundtruth.tum")
+    truth = eval_flight.with_incidence(_read(out / "truth.jsonl"), load_map(bundled_map_path()), gt)
+    signs = [s for t in truth for s in t["signs"]]
+    und = undistort_px(camera, np.array([s["center_px"] for s in signs]))
+    ray = np.column_stack([(und - camera.K[:2, 2]) / camera.fx, np.ones(len(und))])
+    angle = np.degrees(np.arccos(ray[:, 2] / np.linalg.norm(ray, axis=1)))
+    assert angle.max() > 20
+    assert np.abs(angle - [s["off_axis_deg"] for s in signs]).max() < 0.05
+    summary = eval_flight.code_summary(eval_flight.check_codes(_read(obs), truth))
+    by_angle = summary["recall_unhidden_by_off_axis"].values()
+    assert sum(n for n, _, _ in by_angle) == summary["visible_unhidden"]
+    assert sum(n - f for n, f, _ in by_angle) == summary["missed_unhidden"]
