@@ -4,8 +4,12 @@
 Renders crops with ``signpose.sim.crops.render_crop`` in the conditions of
 ``scripts/eval_decoder.py`` (its main mix and each Table 3 condition) and in
 five more that the independent scenes also show (a member in front, a bar over
-one slot, specular glare, JPEG 70-80, a faded face), decodes them, and fits
-``frontend.keypoint_noise.SigmaModel`` per keypoint kind:
+one slot, specular glare, JPEG 70-80, a faded face), and the independent
+scenes of scripts/independent_scene.py (``--scenes`` per condition, 150 by
+default, seed ``--seed`` + 1000: photographs, 3D bars, JPEG; another
+renderer, whose clean signs the simulator-only fit left 1.3-1.4x too
+cautious and whose conductors 1.3-2.6x too confident), decodes them, and
+fits ``frontend.keypoint_noise.SigmaModel`` per keypoint kind:
 
 1. a Gaussian likelihood fit of the additive variance model
    (``keypoint_noise.variance_terms``), every condition weighing the same;
@@ -21,10 +25,11 @@ Prints per condition and kind rms(error / sigma) on u and v and the share of
 |z| > 3, before and after, rows outside 0.8-1.25 marked, and the fitted model
 to paste into frontend/keypoint_noise.py.
 
-The independent scenes (``scripts/eval_decoder.py --independent-only``) are
-the check on data the fit never saw.
+The independent scenes of ``scripts/eval_decoder.py --independent-only``
+(seeds 2017 and 99) are the check on scenes the fit never saw (the same
+renderer, other draws).
 
-    .venv/bin/python scripts/calibrate_sigma.py [--n 150] [--seed 11] [--json PATH]
+    .venv/bin/python scripts/calibrate_sigma.py [--n 150] [--scenes 150] [--seed 11] [--json P]
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ from signpose.frontend.keypoint_noise import (
     kind_of,
     variance_terms,
 )
+from signpose.frontend.sign import PAPER_CODES
 from tqdm import tqdm
 
 from signpose.core.fileio import atomic_write
@@ -57,6 +63,8 @@ from signpose.sim.crops import render_crop
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_decoder import CONDITIONS, condition_params, main_params  # noqa: E402
+from independent_scene import CONDITIONS as SCENE_CONDITIONS  # noqa: E402
+from independent_scene import render_scene_crop, scene_settings  # noqa: E402
 
 KINDS = ("center", "direction", "slot")
 EXTRA_CONDITIONS = ("member in front", "bar over one slot", "specular glare", "jpeg 70-80", "faded")
@@ -76,6 +84,15 @@ _SMALL = 0.01
 # crossed directional errors are 0.1-0.5 px (the sim's power-line
 # crossings drove it; the pulls and ``closed_px`` see those now).
 DROPPED: tuple[str, ...] = ("crossed",)
+# Least constants (per kind, all kinds alike): with the independent scenes in
+# the fit the RMS residual of the homography fit went to ~1e-6 for the centre
+# and the directional keypoint (the per-part residuals carry it where more
+# than four parts over-determine the fit), so a sign whose parts disagree by
+# 0.3 px kept a clean sign's sigma. The fit's residual r over 2P coordinates
+# with 8 parameters says the centroids' noise is about r sqrt(2P / (2P - 8)),
+# and a keypoint the homography predicts is about that uncertain: held at
+# least r / 2 (a conservative half; P = 6 gives 1.7 r).
+LEAST: dict[str, float] = {"residual": 0.5}
 
 
 def extra_params(rng: np.random.Generator, i: int, condition: str) -> dict:
@@ -120,6 +137,26 @@ def collect(n: int, seed: int, quiet: bool) -> list[dict]:
     return rows
 
 
+def collect_scenes(n: int, seed: int, quiet: bool) -> list[dict]:
+    """As ``collect`` on the independent scenes (scripts/independent_scene.py:
+    photographs, 3D bars, JPEG), ``n`` per condition, conditions named
+    "scene: <condition>", codes the paper's map."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for cond in SCENE_CONDITIONS:
+        for i in tqdm(range(n), desc=cond, disable=quiet, leave=False):
+            s = scene_settings(rng, cond)
+            crop = render_scene_crop(PAPER_CODES[i % len(PAPER_CODES)], s, rng)
+            res = decode_roi(crop.image, PAPER_CODES)
+            if res.code != crop.code or res.sigma_inputs is None:
+                continue
+            for kp, uv in res.keypoints_px.items():
+                err = np.subtract(uv, crop.keypoints_px[kp])
+                inputs = res.sigma_inputs
+                rows.append({"condition": f"scene: {cond}", "kp": kp, "inputs": inputs, "err": err})
+    return rows
+
+
 def table(rows: list[dict], model: SigmaModel) -> dict[tuple[str, str], tuple]:
     """(condition, kind) -> (n, rms z_u, rms z_v, share of |z| > 3 over both axes)."""
     acc: dict = defaultdict(list)
@@ -149,8 +186,9 @@ def _design(rows: list[dict], kind: str) -> tuple[np.ndarray, np.ndarray, np.nda
     return np.asarray(x), np.asarray(e), np.asarray(g), np.asarray(ax)
 
 
-def _likelihood_fit(x: np.ndarray, e: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """log of the squared constants maximising the Gaussian likelihood, groups weighed equally."""
+def _likelihood_fit(x: np.ndarray, e: np.ndarray, g: np.ndarray, lo: np.ndarray) -> np.ndarray:
+    """log of the squared constants maximising the Gaussian likelihood, groups
+    weighed equally, each at least ``lo``."""
     w = 1.0 / np.bincount(g)[g]
 
     def nll(lc2: np.ndarray) -> tuple[float, np.ndarray]:
@@ -162,21 +200,22 @@ def _likelihood_fit(x: np.ndarray, e: np.ndarray, g: np.ndarray) -> np.ndarray:
 
     best = None
     for start in (-12.0, -6.0):
-        x0 = np.full(x.shape[1], start)
+        x0 = np.maximum(np.full(x.shape[1], start), lo)
         x0[0] = math.log(np.mean(e**2) / 4)
-        res = minimize(nll, x0, jac=True, method="L-BFGS-B", bounds=[(-40.0, 10.0)] * x.shape[1])
+        bounds = [(max(-40.0, b), 10.0) for b in lo]
+        res = minimize(nll, x0, jac=True, method="L-BFGS-B", bounds=bounds)
         if best is None or res.fun < best.fun:
             best = res
     return best.x
 
 
-def _group_fit(x, e, g, ax, start: np.ndarray) -> tuple[np.ndarray, float]:
-    """From ``start``: log squared constants minimising sum (log rms z)^2 over
-    groups and axes, and that cost."""
+def _group_fit(x, e, g, ax, start: np.ndarray, lo: np.ndarray) -> tuple[np.ndarray, float]:
+    """From ``start``: log squared constants (each at least ``lo``) minimising
+    sum (log rms z)^2 over groups and axes, and that cost."""
     ng = int(g.max()) + 1
 
     def cost(lc2: np.ndarray) -> float:
-        z2 = e**2 / (x @ np.exp(lc2))
+        z2 = e**2 / (x @ np.exp(np.maximum(lc2, lo)))
         c = 0.0
         for a in (0, 1):
             m = ax == a
@@ -209,14 +248,17 @@ def fit(
     ``dropped`` are held at 0."""
     kinds = {}
     keep = np.array([t not in dropped for t in TERMS], dtype=float)
+    lo = np.array([2 * math.log(LEAST[t]) if t in LEAST else -np.inf for t in TERMS])
     for kind in KINDS:
         x, e, g, ax = _design(rows, kind)
         x = x * keep
-        lc2 = _likelihood_fit(x, e, g)
+        lc2 = _likelihood_fit(x, e, g, lo)
         if groups:
             prior = np.log(np.maximum(getattr(start, kind).coefficients(), _SMALL) ** 2)
-            lc2 = min((_group_fit(x, e, g, ax, s) for s in (lc2, prior)), key=lambda r: r[1])[0]
-        c = np.sqrt(np.exp(lc2)) * keep
+            prior = np.maximum(prior, lo)
+            fits = (_group_fit(x, e, g, ax, s, lo) for s in (lc2, prior))
+            lc2 = min(fits, key=lambda r: r[1])[0]
+        c = np.sqrt(np.exp(np.maximum(lc2, lo))) * keep
         kinds[kind] = KindNoise(**{n: float(f"{v:.3g}") for n, v in zip(TERMS, c, strict=True)})
     return SigmaModel(**kinds)
 
@@ -249,9 +291,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--likelihood-only", action="store_true", help="skip step 2 (the per-group fit)"
     )
+    ap.add_argument(
+        "--scenes",
+        type=int,
+        default=150,
+        help="independent-scene crops per condition in the fit (0: simulator crops only)",
+    )
     ap.add_argument("-q", "--quiet", action="store_true")
     args = ap.parse_args(argv)
     rows = collect(args.n, args.seed, args.quiet)
+    if args.scenes > 0:
+        # Their own stream: eval_decoder's checks use seeds 2017 and 99.
+        rows += collect_scenes(args.scenes, args.seed + 1000, args.quiet)
     before = table(rows, SIGMA_MODEL)
     _print(before, "Current model (frontend/keypoint_noise.py)")
     model = fit(rows, groups=not args.likelihood_only)

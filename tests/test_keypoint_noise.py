@@ -223,3 +223,37 @@ def test_the_open_fallback_marks_its_reading_closed():
             assert res.keypoint_sigma_px == keypoint_sigmas(res.sigma_inputs, res.keypoints_px)
             return
     pytest.fail("no power-line crop read through the open fallback in 20")
+
+
+def _with_a_line_beside_the_directional_rectangle(seed: int):
+    """A clean crop, and the same crop with a dark line (a conductor darker
+    than the print) across the disc just beyond the directional rectangle's
+    end (1.3 px off its outline on a 70 px sign): it crosses no white part,
+    so nothing is erased and the code reads the same."""
+    rng = np.random.default_rng(seed)
+    crop = render_crop("1111", rng, sign_px=70, rotation_deg=20, tilt_deg=10, noise_sigma=1.0)
+    clean = decode_roi(crop.image)
+    # The rectangle ends at y = 0.425 diameters; the line at 0.44, 2 px wide.
+    ends = cv2.perspectiveTransform(np.array([[[-0.3, 0.44], [0.3, 0.44]]]), clean.image_H_sign)
+    gray = crop.image.copy()
+    p0, p1 = (tuple(np.round(p * 16).astype(int)) for p in ends[0])
+    cv2.line(gray, p0, p1, 0, 2, cv2.LINE_AA, shift=4)
+    return crop, clean, decode_roi(gray)
+
+
+def test_a_line_beside_a_part_grows_its_sigma_to_cover_its_error():
+    """Issue 11: a conductor across the disc that crosses no white part
+    pulls the part beside it (0.3 px here) while its sigma stayed at the
+    clean sign's 0.03 px (z ~ 10). The dark band just outside the part
+    (``measure_parts``' stray) grows it."""
+    for seed in (0, 1):
+        crop, clean, crossed = _with_a_line_beside_the_directional_rectangle(seed)
+        assert clean.code == crossed.code == "1111"
+        assert not crossed.erased_slots
+        s0, s1 = clean.keypoint_sigma_px["direction"], crossed.keypoint_sigma_px["direction"]
+        assert s1[0] > 2.0 * s0[0] and s1[1] > 2.0 * s0[1], (s0, s1)
+        err = np.subtract(crossed.keypoints_px["direction"], crop.keypoints_px["direction"])
+        assert np.all(np.abs(err) < 3.0 * np.array(s1)), (err, s1)
+        # The other keypoints do not shrink.
+        for n, s in crossed.keypoint_sigma_px.items():
+            assert s[0] >= 0.95 * clean.keypoint_sigma_px[n][0], n
