@@ -318,3 +318,33 @@ def test_the_off_axis_angle_is_where_the_lens_puts_the_sign(scripts, flight):
     by_angle = summary["recall_unhidden_by_off_axis"].values()
     assert sum(n for n, _, _ in by_angle) == summary["visible_unhidden"]
     assert sum(n - f for n, f, _ in by_angle) == summary["missed_unhidden"]
+
+
+def test_a_fisheye_flights_truth_is_where_signpose_projects_the_map(scripts, tmp_path):
+    """truth.jsonl of a tiny fisheye flight (4 frames at 640x360, 120 deg across, panned
+    toward the edges) gives raw pixels: the map's keypoints projected by signpose
+    (cv2.fisheye) through the camera.yaml the drawing wrote, within 0.05 px."""
+    independent_flight, _ = scripts
+    options = independent_flight.FlightOptions(
+        dist=FISHEYE, lens="equidistant", hfov_deg=FISHEYE_HFOV_DEG, pan_deg=50.0,
+        distance_m=7.0, trajectory="lawnmower", speed_mps=2.0, truth=True,
+    )  # fmt: skip
+    independent_flight.write_flight(tmp_path, 4, 640, 360, seed=3, options=options)
+    camera = load_camera(tmp_path / "camera.yaml")
+    assert camera.model == "equidistant"
+    gt = np.loadtxt(tmp_path / "groundtruth.tum", comments="#", ndmin=2)
+    signs = {s.code: s for s in load_map(bundled_map_path()).signs}
+    worst, far, n = 0.0, 0.0, 0
+    for line in _read(tmp_path / "truth.jsonl"):
+        world_T_cam = np.eye(4)
+        world_T_cam[:3, :3] = rotation_from_quat_xyzw(gt[line["frame"], 4:8])[0]
+        world_T_cam[:3, 3] = gt[line["frame"], 1:4]
+        for t in line["signs"]:
+            names, points = zip(*signs[t["code"]].keypoints_world().items(), strict=True)
+            px, _ = pixel_from_world_point(camera, world_T_cam, np.array(points))
+            truth = np.array([t["keypoints_px"][name] for name in names])
+            worst, n = max(worst, float(np.abs(px - truth).max())), n + len(names)
+            far = max(far, float(np.hypot(*(truth[0] - camera.K[:2, 2]))))
+    assert n > 30
+    assert far > 200  # signs well off the axis (~37 deg; the half diagonal is 367 px)
+    assert worst < 0.05
