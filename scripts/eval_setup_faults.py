@@ -56,8 +56,9 @@ run's own files (the poses are the run's; only statuses change).
         [--json PATH] [--flights NAME ...] [--scenarios NAME ...] [--moved-suspect]
         [--rerun]
 
-The default (2 flights x 17 runs) took 4.7-6.8 min wall on the shared 2-core
-machine at load 1-4; ``--quick`` (1 flight, the reference and 3 mistakes) 45 s.
+The default (2 flights x 17 runs) took 4.7-6.8 min wall (4.8 min CPU) on the
+shared 2-core machine at load 1-6; ``--quick`` (1 flight, the reference and 3
+mistakes) 45 s to 1.8 min wall (47 s CPU).
 Flights and runs are kept in ``--work`` and reused when their commands and
 signpose's source files are unchanged (``--rerun`` redoes them).
 """
