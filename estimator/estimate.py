@@ -469,12 +469,16 @@ def check_orientations(
     sign_map: SignMap,
     camera: CameraModel,
     m: MethodEstimate,
+    bent: bool = False,
 ) -> None:
     """InputError naming an oriented sign that the flight sees from behind or turned.
 
     Args:
         frames: the observations; sign_map: the map; camera: the camera.
         m: a method's trajectory (the smoothed one) to look from.
+        bent: the keypoints miss by more than noise (``distrusted``): a sign
+            whose centre misses by over half ``ORIENTATION_MAX_DIAMETERS`` is
+            then not called turned (the camera file's lens may be the cause).
     """
     uses: dict[str, list] = {}
     for i, f in enumerate(frames):
@@ -494,10 +498,15 @@ def check_orientations(
                 "frames that see it; check its 'normal' (it points into the face?)"
             )
         if other_d > ORIENTATION_MAX_DIAMETERS > centre_d:
+            # Centres that miss too (by over half the limit) may be the lens's doing.
+            lens = centre_d > ORIENTATION_MAX_DIAMETERS / 2
+            if lens and bent:
+                continue
             raise InputError(
                 f"{src}: the keypoints of sign {sign.code} do not fit its orientation "
                 f"(median miss {other_d:.2f} sign diameters, its centre {centre_d:.2f}); "
                 "check its 'up' and 'normal'"
+                + (", and the camera file's lens distortion" if lens else "")
             )
 
 
@@ -900,8 +909,8 @@ def distrusted(
     return out, (
         f"the keypoints miss their predicted places by {scale:.1f}x their sigmas "
         f"(pixel_noise_scale, at most {MAX_PIXEL_NOISE_SCALE:g} is noise): the camera file "
-        "(focal length, lens distortion, image size) or the map does not fit this video; "
-        "every pose is marked suspect",
+        "(focal length, lens distortion, image size) or the map (sign positions, 'up' and "
+        "'normal') does not fit this video; every pose is marked suspect",
     )
 
 
@@ -912,9 +921,18 @@ def _checked(
     methods: dict[str, MethodEstimate],
     scale: float,
 ) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
-    """The signs' orientations checked (``check_orientations``), then ``distrusted``."""
+    """The signs' orientations checked (``check_orientations``), then ``distrusted``.
+
+    With keypoints that miss by more than noise (``scale`` above
+    ``MAX_PIXEL_NOISE_SCALE``) a sign whose centre misses too is not blamed
+    on the map's ``up`` and ``normal``: a lens left out of the camera file
+    bends the outer keypoints more than the centre; ``distrusted``'s warning
+    names both the camera file and the map. A sign turned in the map (its
+    centre fits, the rest does not) is still refused by name.
+    """
     if "smoothed" in methods:
-        check_orientations(frames, sign_map, camera, methods["smoothed"])
+        bent = scale > MAX_PIXEL_NOISE_SCALE
+        check_orientations(frames, sign_map, camera, methods["smoothed"], bent)
     return distrusted(methods, scale)
 
 

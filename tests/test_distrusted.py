@@ -70,3 +70,30 @@ def test_below_the_limit_nothing_changes(runs):
             # ok / weak become suspect; failures and bridged poses keep their reason
             assert b is (PoseStatus.SUSPECT if a in (PoseStatus.OK, PoseStatus.WEAK) else a)
         assert np.array_equal(m.world_T_cam, honest.methods[name].world_T_cam)
+
+
+def test_a_lens_left_out_is_not_blamed_on_the_maps_orientations(monkeypatch):
+    # Seen through a lens the camera file leaves out, the outer keypoints miss more
+    # than the centre whatever the map says (a fisheye flight's refusal blamed sign
+    # 1100's 'up' and 'normal'): the orientation check is not the judge there, the
+    # warning names both and every pose is flagged. Here the check always refuses.
+    from signpose.estimator import estimate as est
+
+    from signpose.core.errors import InputError
+
+    def refuse(*args):
+        if not args[-1]:  # bent: the lens may be the cause (the centres miss too)
+            raise InputError("map.yaml: the keypoints of sign 0001 do not fit its orientation")
+
+    monkeypatch.setattr(est, "check_orientations", refuse)
+    sign_map, camera, frames, _, _ = estimator_scene(n_frames=40, sigma_px=0.2, seed=3)
+    s = replace(EstimatorSettings(), methods=("pnp", "smoothed"))
+    s = replace(s, smoother=replace(s.smoother, landmarks="fixed"))
+    with pytest.raises(InputError, match="orientation"):
+        estimate_trajectories(frames, sign_map, camera, s, False)
+    bent = estimate_trajectories(_lens(frames, camera, -1.0), sign_map, camera, s, False)
+    assert bent.pixel_noise_scale > MAX_PIXEL_NOISE_SCALE
+    assert len(bent.warnings) == 1 and "camera file" in bent.warnings[0]
+    assert "'up'" in bent.warnings[0]
+    for m in bent.methods.values():
+        assert not any(st in (PoseStatus.OK, PoseStatus.WEAK) for st in m.status)
