@@ -28,6 +28,7 @@ from signpose.estimator.smoother import (
     collect_measurements,
     solve_map,
 )
+from signpose.estimator.status import PoseStatus
 from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 
@@ -35,6 +36,12 @@ from signpose.core.errors import InputError
 
 # A sign whose centre moved by more than this many survey sigmas is named.
 MOVED_SIGMAS = 3.0
+# A sign the flight moves further than this is not where the map says, or the camera
+# file does not fit the video there: chi with 3 degrees of freedom at a 1 % family-wise
+# rate over a 10-sign map (0.001 per sign: sqrt(16.27)); the poses of the frames that
+# see it rest on it and are marked ``suspect`` (``survey_checked``). Correct set-ups:
+# at most 2.5 sigmas over 7 flights (scripts/eval_flight.py's 5, eval_setup_faults.py's 2).
+SUSPECT_MOVED_SIGMAS = 4.03
 # A sign's shift is fitted from at least this many keypoint observations, in
 # this many Gauss-Newton steps (the problem is nearly linear in the shift).
 SHIFT_MIN_MEASUREMENTS = 6
@@ -291,3 +298,50 @@ def _refined(
     return RefinedMap(
         sign_map=replace(sign_map, signs=tuple(out)), signs=tuple(signs), moved=tuple(moved)
     )
+
+
+def survey_checked(
+    result: EstimateResult, refined: RefinedMap | None, frames: Sequence[FrameObservations]
+) -> EstimateResult:
+    """``result`` with every ``ok`` / ``weak`` pose of a frame that sees a sign the flight
+    moved by more than ``SUSPECT_MOVED_SIGMAS`` survey sigmas marked ``suspect`` (every
+    method), and a warning naming the signs; else ``result`` itself.
+
+    A sign the flight puts decimetres from its survey (a survey slip, two records
+    mixed up, a wrong camera file) pulls the poses that see it by as much while
+    their sigmas stay those of a 1 cm survey: a sign 0.2 m off left every smoothed
+    pose ``ok`` and beyond 3 sigma (scripts/eval_setup_faults.py ``sign_0.2m``).
+
+    Args:
+        result: ``estimate_trajectories``'s result for ``frames``.
+        refined: ``refine_flight``'s map from the same flight, or None (no check).
+        frames: the observations, in ``result``'s frame order.
+    """
+    if refined is None:
+        return result
+    far = sorted(
+        (s for s in refined.signs if s.moved_sigmas > SUSPECT_MOVED_SIGMAS),
+        key=lambda s: -s.moved_sigmas,
+    )
+    if not far:
+        return result
+    codes = {s.code for s in far}
+    sees = [any(o.code in codes for o in f.signs) for f in frames]
+    trusted = (PoseStatus.OK, PoseStatus.WEAK)
+    methods = {
+        name: replace(
+            m,
+            status=tuple(
+                PoseStatus.SUSPECT if st in trusted and seen else st
+                for st, seen in zip(m.status, sees, strict=True)
+            ),
+        )
+        for name, m in result.methods.items()
+    }
+    named = ", ".join(f"{s.code} by {s.moved_m:.2f} m ({s.moved_sigmas:.0f} sigmas)" for s in far)
+    warning = (
+        f"the flight puts sign(s) {named} from the map (more than {SUSPECT_MOVED_SIGMAS:g} "
+        "survey sigmas): the map or the camera file does not fit this video there; the poses "
+        f"of the {sum(sees)} frames that see them are marked suspect (map_refined.json)"
+    )
+    return replace(result, methods=methods, warnings=(*result.warnings, warning))

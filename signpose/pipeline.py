@@ -74,7 +74,7 @@ from signpose.estimator.estimate import (
 )
 from signpose.estimator.fusion import FusionSettings
 from signpose.estimator.perframe import FramePose, PerFrameRun, SolvedPnP, solve_frame_pnp
-from signpose.estimator.refine import refine_flight
+from signpose.estimator.refine import RefinedMap, refine_flight, survey_checked
 from signpose.estimator.telemetry import Telemetry
 from signpose.estimator.trajectory import Trajectory
 from signpose.frontend.detector import (
@@ -1714,13 +1714,13 @@ def run(
     with _plotters(s) as plotters:  # started now: their start overlaps the estimation
         t0 = time.perf_counter()
         estimate = _estimate(obs, sign_map, cam, s, progress, flight.telemetry, per_frame)
+        estimate, refined = _checked_against_survey(obs, sign_map, cam, estimate)
         timing = {**obs.timing_s, "estimate": time.perf_counter() - t0, **_seconds(per_frame)}
-        _warn(echo, estimate.warnings, where=str(source.path))  # e.g. a camera file that
-        # does not fit the video: every pose suspect
+        _warn(echo, estimate.warnings, where=str(source.path))  # a camera file, map that do not fit
         t0 = time.perf_counter()
         trajs, sigmas = _trajectories(estimate)
-        written = _RunFiles(out, s, flight, sign_map, cam, obs, estimate, trajs, sigmas, gt)
-        files = _write_run_files(written, progress, source.frame_id, plotters)
+        made = _RunFiles(out, s, flight, sign_map, cam, obs, estimate, trajs, sigmas, gt, refined)
+        files = _write_run_files(made, progress, source.frame_id, plotters)
         comparison, table = _compare(out, gt_path, s.gt_offset_s)  # while the plots are drawn
         files = [out / OBSERVATIONS_NAME, *files.finish(plotters)]
         timing["outputs"] = time.perf_counter() - t0
@@ -1743,6 +1743,15 @@ def run(
     )
     section = _pipeline_section(result, source, obs, s) | {"run_id": begun.run_id}
     return _write_reports(out, result, section, begun)
+
+
+def _checked_against_survey(
+    obs: ObserveResult, sign_map: SignMap, cam: CameraModel, estimate: EstimateResult
+) -> tuple[EstimateResult, RefinedMap | None]:
+    """``estimate`` with the poses of the frames that see a sign the flight moved far
+    from its survey marked suspect (``refine.survey_checked``), and the flight's map."""
+    refined = refine_flight(list(obs.frames), sign_map, cam, estimate)
+    return survey_checked(estimate, refined, obs.frames), refined
 
 
 def _warn(
@@ -1814,6 +1823,7 @@ class _RunFiles:
     trajs: dict[str, Trajectory]
     sigmas: dict[str, np.ndarray]
     gt: Trajectory | None
+    refined: RefinedMap | None = None  # the flight's map (``refine_flight``)
 
 
 @dataclass(frozen=True)
@@ -1847,8 +1857,7 @@ def _write_run_files(
     plots = _plot_jobs(r, geo) if s.plots else []
     if plotters is not None:
         plotters.start(plots)
-    refined = refine_flight(list(obs.frames), r.sign_map, r.camera, r.estimate)
-    files = [Path(p) for p in write_outputs(out, r.estimate, refined)]
+    files = [Path(p) for p in write_outputs(out, r.estimate, r.refined)]
     files += write_run_geo(out, geo)
     drawn = [] if plotters is not None else [p for job in plots for p in _draw(job)]
     logs = []

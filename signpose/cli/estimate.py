@@ -13,7 +13,7 @@ from signpose.cli import add_quiet, out_folder_arg
 from signpose.cli.run import add_telemetry, fusion_settings, telemetry_request, trust_warnings
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
-from signpose.estimator.refine import refine_flight
+from signpose.estimator.refine import refine_flight, survey_checked
 from signpose.io.camera_file import load_camera
 from signpose.io.geo_out import (
     check_anchor,
@@ -125,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         fusion=fusion if request else None,
     )
     refined = refine_flight(frames, sign_map, camera, result)
+    result = survey_checked(result, refined, frames)  # signs far from the map: suspect
     written = write_outputs(args.out, result, refined)
     written += _geo_files(args, sign_map, result, telemetry, request, notes)
     for line in notes:
