@@ -32,6 +32,7 @@ from signpose.estimator.fusion import (
     on_smoother,
     pose_statuses,
 )
+from signpose.estimator.intrinsics_share import with_focal_share
 from signpose.estimator.noise_scale import (
     exact_map_pose,
     inflated_pose,
@@ -136,6 +137,10 @@ class EstimatorSettings:
         scale_pixel_noise: scale every keypoint sigma up by the flight's own
             a posteriori noise factor from the PnP residuals
             (``estimator.noise_scale``) before the statuses and the smoother.
+        focal_sigma_rel: the camera calibration's focal length sigma, as a
+            fraction of it (0.01: 1 %), added to the position sigmas of every
+            method that has them (``estimator.intrinsics_share``: the video
+            cannot show a focal length error; 0: the calibration is exact).
     """
 
     methods: tuple[str, ...] = METHODS
@@ -150,6 +155,7 @@ class EstimatorSettings:
     tuning: TuningSettings = field(default_factory=TuningSettings)
     final_kernel: str = TUKEY
     scale_pixel_noise: bool = True
+    focal_sigma_rel: float = 0.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -920,8 +926,10 @@ def _checked(
     camera: CameraModel,
     methods: dict[str, MethodEstimate],
     scale: float,
+    s: EstimatorSettings,
 ) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
-    """The signs' orientations checked (``check_orientations``), then ``distrusted``.
+    """The signs' orientations checked (``check_orientations``), then ``distrusted``,
+    then the focal length's stated share added to the sigmas (``intrinsics_share``).
 
     With keypoints that miss by more than noise (``scale`` above
     ``MAX_PIXEL_NOISE_SCALE``) a sign whose centre misses too is not blamed
@@ -933,7 +941,12 @@ def _checked(
     if "smoothed" in methods:
         bent = scale > MAX_PIXEL_NOISE_SCALE
         check_orientations(frames, sign_map, camera, methods["smoothed"], bent)
-    return distrusted(methods, scale)
+    methods, warnings = distrusted(methods, scale)
+    weak = s.status.weak_sigma_m
+    return {
+        k: with_focal_share(m, frames, sign_map, s.focal_sigma_rel, weak)
+        for k, m in methods.items()
+    }, warnings
 
 
 def _noise_scaled(
@@ -1013,7 +1026,7 @@ def estimate_trajectories(
     if run is not None:
         methods.update(run.methods)
         timing.update(run.timing_s)
-    methods, warnings = _checked(frames, sign_map, camera, methods, scale * more)
+    methods, warnings = _checked(frames, sign_map, camera, methods, scale * more, s)
     base = per_frame.get("baseline", ())
     rejected = tuple((p.frame, p.reason) for p in base if p.world_T_cam is None)
     return EstimateResult(

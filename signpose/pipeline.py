@@ -10,7 +10,9 @@ predicted from frame i - ``track_lag_frames`` (constant velocity), whatever
 the number of workers, so the same input gives the same observations.jsonl
 byte for byte on any machine. Readings that contradict the frame (a code seen
 twice) or the track (another code at a tracked sign's place) are refused and
-listed in report.json.
+listed in report.json, as are the readings of codes the map does not have
+(``code_not_in_map``): a code read in ``UNKNOWN_CODE_FRAMES`` frames or more
+is a warning (a sign missing from the map, or the map of another site).
 
 The flight is cut into chunks of
 ``chunk_frames`` source positions (``io.sources.read_range``: a seek to the
@@ -586,10 +588,20 @@ class TrackedPose:
 
 
 class RefusalReason(enum.StrEnum):
-    """Why an observation the decoder accepted was refused; the value is the file token."""
+    """Why a decoded reading is not in observations.jsonl; the value is the file token."""
 
     DUPLICATE_CODE = "duplicate_code"  # its code is seen twice in the frame; not this one
     CODE_CHANGED = "code_changed"  # read at a tracked sign's predicted place, another code
+    CODE_NOT_IN_MAP = "code_not_in_map"  # the decoder read a code the map does not have
+
+
+# Readings that contradict the frame or the track (the others: codes not in the map).
+CONTRADICTIONS = (RefusalReason.DUPLICATE_CODE.value, RefusalReason.CODE_CHANGED.value)
+# A code the map does not have, read in this many frames, is a warning: a sign
+# missing from the map or another site's map. Fewer may be misreadings (the
+# decoder's wrong-code rate is about 1 in 2,000 signs; a 1,000-frame flight
+# with 5 signs in view may misread 2-3 into unknown codes, spread over codes).
+UNKNOWN_CODE_FRAMES = 10
 
 
 @dataclass(frozen=True)
@@ -602,7 +614,9 @@ class RefusedObservation:
         observation: the refused reading.
         other_px: (u, v) [px] of what it disagreed with: the reading of the
             same code that was kept (duplicate_code; None when none was), or
-            the tracked sign's predicted centre (code_changed).
+            the tracked sign's predicted centre (code_changed); None for
+            code_not_in_map (whose observation has the centre of the region
+            read as its only keypoint, and the region as its box).
         other_code: the tracked sign's code (code_changed), else the refused
             reading's own code.
     """
@@ -632,6 +646,33 @@ def refusal_counts(refused: Iterable[RefusedObservation]) -> dict[str, int]:
     for r in refused:
         counts[r.reason.value] += 1
     return counts
+
+
+def unknown_readings(frame: int, result: DetectionResult) -> list[RefusedObservation]:
+    """The decoder's readings of codes the map does not have, as refusals."""
+    out = []
+    for code, (x, y, w, h) in getattr(result, "unknown", ()):
+        centre = (x + w / 2, y + h / 2)
+        sign = SignObservation(code, {"center": centre}, bbox_px=(x, y, w, h), score=0.0)
+        out.append(RefusedObservation(frame, RefusalReason.CODE_NOT_IN_MAP, sign, None, code))
+    return out
+
+
+def unknown_code_warnings(
+    refused: Iterable[RefusedObservation], map_name: str, min_frames: int = UNKNOWN_CODE_FRAMES
+) -> list[str]:
+    """One line per code the map does not have that was read in ``min_frames`` frames or more."""
+    frames: dict[str, set[int]] = {}
+    for r in refused:
+        if r.reason is RefusalReason.CODE_NOT_IN_MAP:
+            frames.setdefault(r.observation.code, set()).add(r.frame)
+    return [
+        f"code {code} was read in {len(seen)} frames (first frame {min(seen)}) but {map_name} "
+        "has no sign of that code: a sign missing from the map (add it with its surveyed "
+        "centre to use it) or the map of another site; its readings were left out"
+        for code, seen in sorted(frames.items())
+        if len(seen) >= min_frames
+    ]
 
 
 def _with_signs(obs: FrameObservations, signs: list[SignObservation]) -> FrameObservations:
@@ -923,6 +964,7 @@ def _finish_frame(item: _Pending, tracker: FrameTracker, out: _Collected) -> Non
     frame = item.frame
     obs = to_frame_observations(detected.result, frame.index, frame.stamp_ns, frame.image_size)
     obs, refused, pnp = tracker.finish(item.position, obs, item.plan, not detected.tracked)
+    refused = refused + unknown_readings(frame.index, detected.result)
     out.timing["track"] += time.perf_counter() - t_done
     out.add(obs, refused, pnp)
 
@@ -1535,10 +1577,17 @@ def _camera_for(source: FrameSource, camera: CameraModel | None) -> CameraModel:
     )
 
 
-def check_codes_seen(frames: tuple[FrameObservations, ...], sign_map: SignMap, where: str) -> None:
-    """InputError when none of the map's signs was seen in any frame."""
+def check_codes_seen(
+    frames: tuple[FrameObservations, ...],
+    sign_map: SignMap,
+    where: str,
+    refused: Iterable[RefusedObservation] = (),
+) -> None:
+    """InputError when none of the map's signs was seen in any frame (naming the
+    codes that were read, the map's or not)."""
     seen = {o.code for f in frames for o in f.signs}
     if not seen & set(sign_map.codes):
+        seen |= {r.observation.code for r in refused}
         extra = f" (the frames show {', '.join(sorted(seen))})" if seen else ""
         raise InputError(
             f"{sign_map.source or 'map'}: none of the map's codes "
@@ -1709,12 +1758,12 @@ def run(
     made = {"detector": detector, "detector_factory": detector_factory}
     obs, per_frame = _observe_run(source, sign_map, cam, s, progress, out, made)
     _warn(echo, obs.problems)
-    check_codes_seen(obs.frames, sign_map, str(source.path))
+    unknown = _codes_checked(obs, sign_map, str(source.path), echo)
     _check_gt_overlap(obs.frames, source.path, gt, gt_path)
     with _plotters(s) as plotters:  # started now: their start overlaps the estimation
         t0 = time.perf_counter()
         estimate = _estimate(obs, sign_map, cam, s, progress, flight.telemetry, per_frame)
-        estimate, refined = _checked_against_survey(obs, sign_map, cam, estimate)
+        estimate, refined = _checked_against_survey(obs, sign_map, cam, estimate, unknown)
         timing = {**obs.timing_s, "estimate": time.perf_counter() - t0, **_seconds(per_frame)}
         _warn(echo, estimate.warnings, where=str(source.path))  # a camera file, map that do not fit
         t0 = time.perf_counter()
@@ -1745,13 +1794,32 @@ def run(
     return _write_reports(out, result, section, begun)
 
 
+def _codes_checked(
+    obs: ObserveResult, sign_map: SignMap, where: str, echo: Callable[[str], None] | None
+) -> list[str]:
+    """``check_codes_seen``, then the warnings about codes the map does not have
+    (``unknown_code_warnings``), told now and returned for report.json."""
+    check_codes_seen(obs.frames, sign_map, where, obs.refused)
+    unknown = unknown_code_warnings(obs.refused, sign_map.source or "the map")
+    _warn(echo, unknown, where=where)
+    return unknown
+
+
 def _checked_against_survey(
-    obs: ObserveResult, sign_map: SignMap, cam: CameraModel, estimate: EstimateResult
+    obs: ObserveResult,
+    sign_map: SignMap,
+    cam: CameraModel,
+    estimate: EstimateResult,
+    more_warnings: list[str],
 ) -> tuple[EstimateResult, RefinedMap | None]:
     """``estimate`` with the poses of the frames that see a sign the flight moved far
-    from its survey marked suspect (``refine.survey_checked``), and the flight's map."""
+    from its survey marked suspect (``refine.survey_checked``), and the flight's map;
+    ``more_warnings`` (already told) added to its warnings for report.json."""
     refined = refine_flight(list(obs.frames), sign_map, cam, estimate)
-    return survey_checked(estimate, refined, obs.frames), refined
+    checked = survey_checked(estimate, refined, obs.frames)
+    if more_warnings:
+        checked = replace(checked, warnings=(*checked.warnings, *more_warnings))
+    return checked, refined
 
 
 def _warn(

@@ -239,3 +239,33 @@ def test_observe_command(flight, replay, tmp_path, capsys):
     code = main(["observe", str(flight.frames_path), "--out", str(tmp_path / "no" / "o.jsonl")])
     assert code == 2
     _one_error_line(capsys, "folder does not exist")
+
+
+@pytest.mark.parametrize("value", ["-0.01", "0.5", "nan"])
+def test_focal_sigma_out_of_range(flight, replay, tmp_path, capsys, value):
+    code = main(
+        ["run", str(flight.frames_path), "--map", MAP, "--camera", str(flight.camera_path),
+         "--out", str(tmp_path / "out"), "--quiet", "--workers", "1", "--focal-sigma", value]
+    )  # fmt: skip
+    assert code == 2
+    _one_error_line(capsys, f"--focal-sigma {float(value)}", "fraction in [0, 0.5)")
+    assert not (tmp_path / "out" / "report.json").exists()
+
+
+def test_focal_sigma_widens_the_reported_sigmas(flight, replay, tmp_path):
+    outs = {}
+    for rel in ("0", "0.02"):
+        out = tmp_path / f"out{rel}"
+        args = ["run", str(flight.frames_path), "--map", MAP, "--camera", str(flight.camera_path),
+                "--out", str(out), "--quiet", "--workers", "1", "--no-plots",
+                "--focal-sigma", rel]  # fmt: skip
+        assert main(args) == 0
+        report = json.loads((out / "report.json").read_text())
+        assert report["settings"]["focal_sigma_rel"] == float(rel)
+        rows = [r.split(",") for r in (out / "trajectory.csv").read_text().splitlines()]
+        col = {name: i for i, name in enumerate(rows[0])}
+        smoothed = [r for r in rows[1:] if r[col["method"]] == "smoothed"]
+        outs[rel] = np.array([[float(r[col[f"sigma_{a}_m"]]) for a in "xyz"] for r in smoothed])
+    # 2 % of the camera's distance to the signs (several metres), in quadrature
+    grown = np.sqrt(np.sum(outs["0.02"] ** 2 - outs["0"] ** 2, axis=1))
+    assert np.all(np.isfinite(grown)) and np.all(grown > 0.05)

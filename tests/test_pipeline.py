@@ -342,7 +342,9 @@ def test_run_refuses_a_misread_code_and_says_so(tiny_flight, tmp_path, tracking,
         progress=False,
         detector=_MisreadingDetector(truth_detector(tiny_flight)),
     )
-    assert result.refused == {"duplicate_code": 0, "code_changed": 0} | {reason: 1}
+    assert result.refused == {"duplicate_code": 0, "code_changed": 0, "code_not_in_map": 0} | {
+        reason: 1
+    }
     refused = json.loads((out / "report.json").read_text())["pipeline"]["refused"]
     assert refused["counts"] == result.refused
     assert [(r["frame"], r["reason"]) for r in refused["observations"]] == [(3, reason)]

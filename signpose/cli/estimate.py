@@ -10,7 +10,14 @@ from pathlib import Path
 import numpy as np
 
 from signpose.cli import add_quiet, out_folder_arg
-from signpose.cli.run import add_telemetry, fusion_settings, telemetry_request, trust_warnings
+from signpose.cli.run import (
+    add_focal_sigma,
+    add_telemetry,
+    focal_sigma,
+    fusion_settings,
+    telemetry_request,
+    trust_warnings,
+)
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings, check_inputs, estimate_trajectories
 from signpose.estimator.refine import refine_flight, survey_checked
@@ -69,6 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="keep the motion prior's default strength (default: chosen from the flight)",
     )
+    add_focal_sigma(p)
     add_telemetry(p, log_input=False)
     add_quiet(p)
     p.set_defaults(func=run)
@@ -111,7 +119,12 @@ def run(args: argparse.Namespace) -> int:
     if args.max_speed is not None:
         per_frame = replace(per_frame, max_speed_mps=args.max_speed)
     settings = replace(
-        settings, methods=methods, solver=args.solver, smoother=smoother, per_frame=per_frame
+        settings,
+        methods=methods,
+        solver=args.solver,
+        smoother=smoother,
+        per_frame=per_frame,
+        focal_sigma_rel=focal_sigma(args),
     )
     if args.fixed_motion_prior:
         settings = replace(settings, tune_motion=False)

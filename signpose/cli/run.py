@@ -30,7 +30,7 @@ from signpose.io.clock import parse_start_time
 from signpose.io.results import read_report
 from signpose.io.telemetry import TelemetryRequest
 from signpose.maps.loader import load_map
-from signpose.pipeline import STAGES, RunResult, RunSettings
+from signpose.pipeline import CONTRADICTIONS, STAGES, RefusalReason, RunResult, RunSettings
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -73,10 +73,35 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="skip the smoother's marginal sigmas (faster on long flights; no sigma bands)",
     )
+    add_focal_sigma(p)
     add_telemetry(p, log_input=True)
     add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
+
+
+def add_focal_sigma(p: argparse.ArgumentParser) -> None:
+    """--focal-sigma: the calibration's focal length uncertainty, into the pose sigmas."""
+    p.add_argument(
+        "--focal-sigma",
+        type=float,
+        default=0.0,
+        metavar="REL",
+        help="the camera calibration's focal length sigma as a fraction (0.005: 0.5 %%), added "
+        "to the position sigmas: from one pylon face a focal length error moves every pose by "
+        "that fraction of its range and the video cannot show it (default 0: exact)",
+    )
+
+
+def focal_sigma(args: argparse.Namespace) -> float:
+    """--focal-sigma checked (InputError outside [0, 0.5))."""
+    rel = args.focal_sigma
+    if not (math.isfinite(rel) and 0.0 <= rel < 0.5):
+        raise InputError(
+            f"--focal-sigma {rel}: give the focal length's sigma as a fraction in [0, 0.5), "
+            "e.g. 0.005 for 0.5 %"
+        )
+    return rel
 
 
 def add_telemetry(p: argparse.ArgumentParser, log_input: bool) -> None:
@@ -186,11 +211,17 @@ def print_result(result: RunResult, out: TextIO | None = None, quiet: bool = Fal
     if result.position_rmse_m:
         err = ", ".join(f"{k} {v:.3f} m" for k, v in result.position_rmse_m.items())
         print(f"position RMSE vs ground truth: {err}", file=out)
-    if any(result.refused.values()):
-        why = ", ".join(f"{k} {n}" for k, n in result.refused.items() if n)
+    contradicting = {k: n for k, n in result.refused.items() if k in CONTRADICTIONS and n}
+    if contradicting:
+        why = ", ".join(f"{k} {n}" for k, n in contradicting.items())
         print(
-            f"refused {sum(result.refused.values())} decoded readings that contradict the frame "
+            f"refused {sum(contradicting.values())} decoded readings that contradict the frame "
             f"or the track ({why}); listed in report.json",
+            file=out,
+        )
+    if n_unknown := result.refused.get(RefusalReason.CODE_NOT_IN_MAP.value, 0):
+        print(
+            f"left out {n_unknown} readings of codes the map does not have; listed in report.json",
             file=out,
         )
     if quiet:
@@ -257,7 +288,9 @@ def run(args: argparse.Namespace) -> int:
     settings = RunSettings(
         observe=observe_settings(args),
         estimator=EstimatorSettings(
-            solver=args.solver, smoother=SmootherSettings(compute_sigmas=not args.no_sigmas)
+            solver=args.solver,
+            smoother=SmootherSettings(compute_sigmas=not args.no_sigmas),
+            focal_sigma_rel=focal_sigma(args),
         ),
         with_images=args.with_images,
         plots=not args.no_plots,

@@ -216,6 +216,7 @@ def report_dict(result: EstimateResult) -> dict:
             "outliers": o,
             "motion_prior": result.motion.to_dict() if result.motion is not None else None,
             "pixel_noise_scale": result.pixel_noise_scale,
+            "pose_noise_scale": result.pose_noise_scale,
             **({"warnings": list(result.warnings)} if result.warnings else {}),
         }
     )
