@@ -13,7 +13,8 @@ grades every run by frame index against the drawing's ground truth:
 
 * correct: the reference row;
 * ``focal_3pct`` / ``focal_8pct``: camera.yaml's fx, fy 3 % / 8 % too large (a
-  calibration made at another zoom or focus);
+  calibration made at another zoom or focus); ``focal_3pct_stated``: the same 3 %
+  with ``--focal-sigma 0.03`` (the user stating the calibration's uncertainty);
 * ``principal_15px``: the principal point 15 px off in u;
 * ``codes_swapped``: the two most seen signs' codes swapped in the map (a survey
   record mix-up);
@@ -242,13 +243,15 @@ class Flight:
 
 @dataclass(frozen=True)
 class Setup:
-    """What ``signpose run`` is given: the input, map, camera, --fps, --gt (None: left out)."""
+    """What ``signpose run`` is given: the input, map, camera, --fps, --gt (None: left
+    out), and more options (``extra``)."""
 
     input_path: Path
     map_path: Path
     camera_path: Path
     fps: float | None = None
     gt: Path | None = None
+    extra: tuple[str, ...] = ()
 
 
 def _with_map(f: Flight, d: Path, sign_map: SignMap) -> Setup:
@@ -289,6 +292,9 @@ SCENARIOS = (
              lambda f, d: _with_camera(f, d, scaled_focal(f.camera, 1.03))),
     Scenario("focal_8pct", "fx, fy 8 % too large",
              lambda f, d: _with_camera(f, d, scaled_focal(f.camera, 1.08))),
+    Scenario("focal_3pct_stated", "fx, fy 3 % too large, run with --focal-sigma 0.03",
+             lambda f, d: replace(_with_camera(f, d, scaled_focal(f.camera, 1.03)),
+                                  extra=("--focal-sigma", "0.03"))),
     Scenario("principal_15px", "principal point 15 px off in u",
              lambda f, d: _with_camera(f, d, shifted_principal_point(f.camera, 15.0, 0.0))),
     Scenario("codes_swapped", "the two most seen signs' codes swapped in the map",
@@ -332,7 +338,7 @@ def _run_argv(setup: Setup, out: Path) -> list[str]:
         argv += ["--fps", f"{setup.fps:g}"]
     if setup.gt is not None:
         argv += ["--gt", str(setup.gt)]
-    return argv
+    return argv + list(setup.extra)
 
 
 def _noise_scales(report: dict) -> dict[str, float]:
