@@ -35,11 +35,15 @@ box in raw pixels through the lens, the share of its disc hidden):
 * with ``--why-missed``: each unhidden sign the run missed decoded alone on its
   true box: the detector / tracker lost it, or the decoder refuses it (why);
 * with ``--oracle``: the same observations with every keypoint moved to its
-  true pixel, estimated against the same map: the estimator's share of an error.
+  true pixel, estimated against the same map: the estimator's share of an error;
+* with ``--survey-response``: the smoothed positions' response to each sign
+  centre (oracle keypoints, 3 estimates per sign, ~4 min for 12 signs and 240
+  frames): the survey's share of each pose's sigma, and the chance of a survey
+  draw as bad as the flight's (``survey_response``).
 
     nice -n 5 .venv/bin/python scripts/eval_flight.py [--quick] [--work DIR] [--json PATH]
         [--flights NAME ...] [--wide] [--without lens jpeg vibration pan members] [--surveys K]
-        [--drop-lens-model] [--oracle] [--why-missed] [--rerun]
+        [--drop-lens-model] [--oracle] [--why-missed] [--survey-response] [--rerun]
 
 ``--wide`` (or ``--flights fisheye hd_fisheye_orbit action_cam``) adds three
 flights through wide-angle lenses: two fisheyes (the equidistant model,
@@ -778,6 +782,166 @@ def missed_reasons(flight: Path, truth: list[dict], check: CodeCheck, codes) -> 
     return reasons
 
 
+# --------------------------------------------------------------------------- survey response
+
+# Each sign centre is moved by this along each world axis to measure the smoothed
+# positions' response to it [m]; the solve is linear in the survey at this scale
+# (two_faces: the response predicts the smoothed error on the surveyed map within 0.2 mm).
+RESPONSE_STEP_M = 0.01
+# Survey draws simulated through the measured response.
+RESPONSE_DRAWS = 100_000
+
+
+def _smoothed_rows(trajectory_csv: Path) -> dict[int, dict]:
+    """frame -> the smoothed row of a trajectory.csv, for the rows with a position."""
+    rows = _rows_by_method(trajectory_csv).get("smoothed", [])
+    return {int(r["frame"]): r for r in rows if r["x_m"] != ""}
+
+
+def _positions(rows: dict[int, dict], frames: list[int]) -> np.ndarray:
+    return np.array([[float(rows[i][f"{a}_m"]) for a in AXES] for i in frames]).reshape(-1, 3)
+
+
+def _moved_map(src: Path, dst: Path, k: int, axis: int) -> None:
+    m = load_map(src)
+    signs = list(m.signs)
+    centre = np.asarray(signs[k].center_m, float).copy()
+    centre[axis] += RESPONSE_STEP_M
+    signs[k] = replace(signs[k], center_m=centre)
+    write_map(dst, replace(m, signs=tuple(signs)))
+
+
+def simulated_draws(
+    noise_m: np.ndarray,
+    J: np.ndarray,
+    sigma_xyz_m: np.ndarray,
+    ok: np.ndarray,
+    sigma_m: np.ndarray,
+    draws: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Survey draws through a flight's linear response, graded like the flight.
+
+    Args:
+        noise_m: (N, 3) the positions' error on the exact map (the keypoints' share) [m].
+        J: (N, 3, P) the positions' response to the P survey coordinates [m / m].
+        sigma_xyz_m: (N, 3) the claimed sigmas [m]; ok: (N,) the ``ok`` statuses.
+        sigma_m: (P,) each survey coordinate's sigma [m].
+
+    Returns:
+        ((draws,) ``ok`` poses beyond 3 sigma on some axis, (draws,) worst axis's
+        rms(e/sigma), (3,) rms(e/sigma) pooled over draws and poses).
+    """
+    bad, rms_max, sq = [], [], np.zeros(3)
+    for chunk in np.array_split(rng.normal(size=(draws, len(sigma_m))) * sigma_m, 100):
+        z = (noise_m[None] + np.einsum("nij,kj->kni", J, chunk)) / sigma_xyz_m[None]
+        bad.append((ok[None] & (np.abs(z) > 3).any(axis=2)).sum(axis=1))
+        rms_max.append(np.sqrt(np.mean(z**2, axis=1)).max(axis=1))
+        sq += np.sum(z**2, axis=(0, 1))
+    pooled = np.sqrt(sq / (draws * len(noise_m)))
+    return np.concatenate(bad), np.concatenate(rms_max), pooled
+
+
+def survey_response(spec: FlightSpec, work: Path, rerun: bool) -> dict:
+    """How much of the smoothed poses' error and sigma the survey's draw explains.
+
+    The oracle's observations (true keypoints) estimated against the true map, then
+    against it with each sign centre moved by ``RESPONSE_STEP_M`` along each axis: the
+    smoothed positions' linear response ``J`` (N, 3, 3K) to the K centres. From it:
+    the survey's share of each pose's sd, ``sqrt(diag(J Sigma_m J^T))`` (Sigma_m: each
+    centre N(0, sigma_m^2 I), as ``surveyed_map`` draws), against the smoothed sigma;
+    the error the flight's own draw predicts against the oracle's on it; and
+    ``RESPONSE_DRAWS`` survey draws simulated as the flight's observations' error on the
+    true map plus ``J delta``, graded like the flight (its sigmas and ``ok`` statuses):
+    the chance of a draw as bad as the flight's. All frames of a flight share one
+    draw, so one flight's count of ``ok`` poses beyond 3 sigma says little alone.
+    """
+    d = work / spec.name
+    flight, gt = d / "flight", read_gt(d / "flight" / "groundtruth.tum")
+    true_map, resp = d / "map_true.yaml", ensure_dir(d / "response")
+    oracle_obs = d / ORACLE_NAME
+    if not oracle_obs.is_file():
+        frames = oracle_observations(
+            read_jsonl(d / "out" / "observations.jsonl"), read_jsonl(flight / "truth.jsonl")
+        )
+        with atomic_write(oracle_obs) as f:
+            f.writelines(json.dumps(o) + "\n" for o in frames)
+
+    def smoothed(observations: Path, given: Path, name: str) -> dict[int, dict]:
+        argv = estimate_argv(flight, observations, given, resp / name)
+        argv[argv.index("all")] = "smoothed"
+        ran = run_signpose(argv, resp / f"{name}.json", rerun)
+        if ran["exit"] != 0:
+            raise SystemExit(f"signpose {' '.join(argv)} exited {ran['exit']}: {ran['stderr']}")
+        return _smoothed_rows(resp / name / "trajectory.csv")
+
+    real = _smoothed_rows(d / "out" / "trajectory.csv")
+    base = smoothed(oracle_obs, true_map, "oracle_true")
+    noise_rows = smoothed(d / "out" / "observations.jsonl", true_map, "true")
+    frames = sorted(i for i in real if real[i]["sigma_x_m"] != "" and i in base and i in noise_rows)
+    p0 = _positions(base, frames)
+    signs = load_map(true_map).signs
+    J = np.zeros((len(frames), 3, 3 * len(signs)))
+    for k in range(len(signs)):
+        for axis in range(3):
+            given = resp / f"map_{k}_{axis}.yaml"
+            _moved_map(true_map, given, k, axis)
+            p = _positions(smoothed(oracle_obs, given, f"moved_{k}_{axis}"), frames)
+            J[:, :, 3 * k + axis] = (p - p0) / RESPONSE_STEP_M
+    sigma_m = np.repeat([s.sigma_m for s in signs], 3)
+    share = np.sqrt(np.einsum("nij,nij->ni", J * sigma_m, J * sigma_m))
+    sigma = np.array([[float(real[i][f"sigma_{a}_m"]) for a in AXES] for i in frames])
+    ok = np.array([real[i]["status"] == "ok" for i in frames])
+    truth = gt[frames, 1:4]
+    surveyed = {
+        s.code: np.asarray(s.center_m, float) for s in load_map(d / "map_surveyed.yaml").signs
+    }
+    delta = np.concatenate([surveyed[s.code] - np.asarray(s.center_m, float) for s in signs])
+    predicted = p0 - truth + J @ delta
+    out: dict = {
+        "frames": len(frames),
+        "share_sd_m_median": np.median(share, axis=0).round(4).tolist(),
+        "sigma_m_median": np.median(sigma, axis=0).round(4).tolist(),
+        "sigma_over_share_min_median_max": [
+            np.min(sigma / share, axis=0).round(3).tolist(),
+            np.median(sigma / share, axis=0).round(3).tolist(),
+            np.max(sigma / share, axis=0).round(3).tolist(),
+        ],
+        "draw_offsets_sigmas_max": round(float(np.max(np.abs(delta / sigma_m))), 2),
+        "draw_predicted_mean_err_m": predicted.mean(axis=0).round(4).tolist(),
+    }
+    oracle_csv = d / "oracle" / "trajectory.csv"
+    if oracle_csv.is_file():
+        o = _smoothed_rows(oracle_csv)
+        if all(i in o for i in frames):
+            actual = _positions(o, frames) - truth
+            out["draw_oracle_mean_err_m"] = actual.mean(axis=0).round(4).tolist()
+            out["draw_predicted_vs_oracle_max_m"] = round(
+                float(np.abs(actual - predicted).max()), 4
+            )
+    noise = _positions(noise_rows, frames) - truth
+    z_flight = (noise + J @ delta) / sigma
+    flight_bad = int((ok & (np.abs(z_flight) > 3).any(axis=1)).sum())
+    rng = np.random.default_rng(spec.options.seed)
+    bad, rms_max, pooled_rms = simulated_draws(noise, J, sigma, ok, sigma_m, RESPONSE_DRAWS, rng)
+    rms_flight = float(np.sqrt(np.mean(z_flight**2, axis=0)).max())
+    out |= {
+        "ok": int(ok.sum()),
+        "flight_ok_beyond_3sigma": flight_bad,
+        "flight_rms_z_max_axis": round(rms_flight, 2),
+        "draws": RESPONSE_DRAWS,
+        "pooled_rms_z_xyz": pooled_rms.round(3).tolist(),
+        "pooled_ok_beyond_3sigma_share": round(float(bad.sum() / (RESPONSE_DRAWS * ok.sum())), 5),
+        "p_any_ok_beyond_3sigma": round(float(np.mean(bad >= 1)), 5),
+        "p_as_many_ok_beyond_3sigma": round(float(np.mean(bad >= max(flight_bad, 1))), 6),
+        "p_rms_z_max_axis_as_large": round(float(np.mean(rms_max >= rms_flight)), 6),
+        "rms_z_max_axis_percentiles_50_90_99": np.percentile(rms_max, [50, 90, 99])
+        .round(2)
+        .tolist(),
+    }
+    return out
+
+
 # --------------------------------------------------------------------------- one flight
 
 
@@ -789,9 +953,11 @@ def evaluate(
     lensless: bool = False,
     use_oracle: bool = False,
     why_missed: bool = False,
+    response: bool = False,
 ) -> dict:
     """Draw, run and grade one flight (and estimate it against ``draws`` more surveys,
-    with ``lensless`` without its lens model, with ``use_oracle`` from true keypoints)."""
+    with ``lensless`` without its lens model, with ``use_oracle`` from true keypoints,
+    with ``response`` the survey's share of its smoothed poses: ``survey_response``)."""
     flight, draw, run = prepare(spec, work, rerun)
     d = work / spec.name
     out = d / "out"
@@ -833,6 +999,8 @@ def evaluate(
         if draws:
             pooled = survey_draws(spec, work, draws, rerun, "oracle")
             result["surveys_oracle"] = survey_summary(pooled)
+    if response:
+        result["survey_response"] = survey_response(spec, work, rerun)
     return result
 
 
@@ -910,6 +1078,8 @@ def print_flight(r: dict) -> None:
         _print_methods(wl["methods"])
     elif wl:
         print(f"  without the lens model: exited {wl['exit']}: {wl['stderr']}")
+    if "survey_response" in r:
+        _print_response(r["survey_response"])
     for key, m, v in [(k, m, v) for k in SURVEY_KEYS for m, v in r.get(k, {}).items()]:
         if v["n"]:
             print(
@@ -918,6 +1088,27 @@ def print_flight(r: dict) -> None:
                 f"x y z {v['rms_z_xyz']}, ok beyond 3 sigma {v['ok_beyond_3sigma']} of "
                 f"{v['ok']}; mean error per draw [m] {v['mean_err_m_per_draw']}"
             )
+
+
+def _print_response(v: dict) -> None:
+    lo, med, hi = v["sigma_over_share_min_median_max"]
+    print(
+        f"  smoothed, the survey's share (response to each centre, oracle keypoints, "
+        f"{v['frames']} frames): sd x y z median {v['share_sd_m_median']} m, sigma median "
+        f"{v['sigma_m_median']} m, sigma / share min {lo} median {med} max {hi};\n"
+        f"    this draw (largest offset {v['draw_offsets_sigmas_max']} sigma_m): predicted "
+        f"mean error {v['draw_predicted_mean_err_m']} m (oracle on it "
+        f"{v.get('draw_oracle_mean_err_m', '-')}, max diff "
+        f"{v.get('draw_predicted_vs_oracle_max_m', '-')} m); the flight through the response: "
+        f"ok beyond 3 sigma {v['flight_ok_beyond_3sigma']} of {v['ok']}, rms(e/sigma) worst "
+        f"axis {v['flight_rms_z_max_axis']};\n    over {v['draws']} simulated draws: pooled "
+        f"rms(e/sigma) x y z {v['pooled_rms_z_xyz']}, ok beyond 3 sigma "
+        f"{100 * v['pooled_ok_beyond_3sigma_share']:.2f}%; P(any ok beyond 3 sigma) "
+        f"{v['p_any_ok_beyond_3sigma']}, P(as many as this draw) "
+        f"{v['p_as_many_ok_beyond_3sigma']}, P(worst-axis rms(e/sigma) as large) "
+        f"{v['p_rms_z_max_axis_as_large']}; per-draw worst-axis rms(e/sigma) 50/90/99 % "
+        f"{v['rms_z_max_axis_percentiles_50_90_99']}"
+    )
 
 
 def pooled(results: list[dict]) -> dict:
@@ -1032,6 +1223,11 @@ def main(argv: list[str] | None = None) -> int:
         "--why-missed", action="store_true",
         help="decode each unhidden sign the run missed on its true box (detector or decoder?)",
     )  # fmt: skip
+    ap.add_argument(
+        "--survey-response", action="store_true",
+        help="measure the smoothed poses' response to each sign centre (3 estimates per "
+        "sign): the survey's share of their sigma and how likely the flight's draw is",
+    )  # fmt: skip
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     specs = QUICK_SET if args.quick else DEFAULT_SET
@@ -1054,6 +1250,7 @@ def main(argv: list[str] | None = None) -> int:
                 args.drop_lens_model,
                 args.oracle,
                 args.why_missed,
+                args.survey_response,
             )  # fmt: skip
         )
         print_flight(results[-1])
