@@ -25,7 +25,7 @@ the N outputs, instead of one Bayes-tree marginal per pose.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -175,11 +175,27 @@ _BATCH = 256
 
 
 class _TailProducts:
-    """``A_i Sigma_TT A_i^T`` of many nodes, as one product ``A @ R_T^-1`` per batch."""
+    """``A_i Sigma_TT A_i^T`` of many nodes, as one product ``A @ R_T^-1`` per batch.
 
-    def __init__(self, tail_rinv: np.ndarray, diag: dict[int, np.ndarray]):
+    With ``prior_rows`` ((D, P) rows of ``R_T^-1`` at the priors' P coordinates,
+    transposed) and ``prior_info`` ((P, P) their information) also ``C_i prior_info
+    C_i^T`` into ``share``, ``C_i = W_i prior_rows = Sigma_iP`` (``W_i = A_i R_T^-1``):
+    see ``selected_covariances_and_shares``.
+    """
+
+    def __init__(
+        self,
+        tail_rinv: np.ndarray,
+        diag: dict[int, np.ndarray],
+        prior_rows: np.ndarray | None = None,
+        prior_info: np.ndarray | None = None,
+        share: dict[int, np.ndarray] | None = None,
+    ):
         self.tail_rinv = tail_rinv
         self.diag = diag
+        self.prior_rows = prior_rows
+        self.prior_info = prior_info
+        self.share = share
         self.pending: list[tuple[int, np.ndarray]] = []
 
     def add(self, i: int, A: np.ndarray) -> None:
@@ -198,10 +214,20 @@ class _TailProducts:
             for (i, _), o in zip(items, outer, strict=True):
                 q = self.diag[i] + o
                 self.diag[i] = 0.5 * (q + q.T)
+            if self.share is not None:
+                C = W @ self.prior_rows  # (n, d, P): Sigma_iP
+                part = C @ self.prior_info @ C.transpose(0, 2, 1)
+                for (i, _), o in zip(items, part, strict=True):
+                    self.share[i] = 0.5 * (o + o.T)
 
 
 def _backward(
-    nodes: list[_Node], tail_rinv: np.ndarray, wanted_nodes: set[int]
+    nodes: list[_Node],
+    tail_rinv: np.ndarray,
+    wanted_nodes: set[int],
+    prior_rows: np.ndarray | None = None,
+    prior_info: np.ndarray | None = None,
+    share: dict[int, np.ndarray] | None = None,
 ) -> dict[int, np.ndarray]:
     """Each wanted node's marginal covariance, last node first (see the module docstring).
 
@@ -229,7 +255,7 @@ def _backward(
     pair: dict[tuple[int, int], np.ndarray] = {}  # (i, j), i < j
     pairs_of: dict[int, list[tuple[int, int]]] = {}
     diag: dict[int, np.ndarray] = {}
-    tail = _TailProducts(tail_rinv, diag)
+    tail = _TailProducts(tail_rinv, diag, prior_rows, prior_info, share)
 
     def get(a: int, b: int) -> np.ndarray:
         if a == b:
@@ -287,6 +313,32 @@ def selected_covariances(
     Returns:
         key -> (d, d) covariance.
     """
+    return selected_covariances_and_shares(conditionals, tail_start, wanted, {})[0]
+
+
+def selected_covariances_and_shares(
+    conditionals: Sequence[Conditional],
+    tail_start: int,
+    wanted: Sequence[int],
+    priors: Mapping[int, np.ndarray],
+) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+    """``selected_covariances`` and each wanted variable's share from some priors.
+
+    A prior ``N(m_k, Lambda_k^-1)`` on a tail variable k moves the solution by
+    ``Sigma_ik Lambda_k`` per unit of ``m_k`` (linearised), so a prior mean drawn
+    as the prior says (a survey's centres) contributes ``Sigma_iP Lambda_P Sigma_Pi``
+    (P: the priors' variables) to variable i's covariance: the error that every
+    variable seeing those priors shares. ``Sigma_iP = A_i Sigma_TP`` (module
+    docstring), so each share costs one more product per batch of frames.
+
+    Args:
+        conditionals, tail_start, wanted: as ``selected_covariances``.
+        priors: tail key -> (d, d) information of its prior (``Lambda_k``).
+
+    Returns:
+        (key -> (d, d) covariance, key -> (d, d) the priors' share of it; empty
+        without ``priors``).
+    """
     dims = {c.key: c.R.shape[0] for c in conditionals}
     offset, tail_rinv = _tail_sqrt_covariance(conditionals[tail_start:], dims)
     tail_cov = tail_rinv @ tail_rinv.T
@@ -302,14 +354,30 @@ def selected_covariances(
     for nd in nodes:
         _split_parents(nd, dims, offset, where, node_dim, cache)
     want = [k for k in wanted if k not in offset]
-    diag = _backward(nodes, tail_rinv, {where[k][0] for k in want})
-    out = {}
+    prior_rows, info, share_tail, node_share = None, None, None, None
+    if priors:
+        idx = np.concatenate([np.arange(offset[k], offset[k] + dims[k]) for k in priors])
+        info = np.zeros((len(idx), len(idx)))
+        o = 0
+        for k, lam in priors.items():
+            info[o : o + dims[k], o : o + dims[k]] = lam
+            o += dims[k]
+        prior_rows = tail_rinv[idx].T  # Sigma_TP = R_T^-1 prior_rows
+        cross = tail_cov[:, idx]
+        share_tail = cross @ info @ cross.T
+        node_share = {}
+    diag = _backward(nodes, tail_rinv, {where[k][0] for k in want}, prior_rows, info, node_share)
+    out, shares = {}, {}
     for key in wanted:
         d = dims[key]
         if key in offset:
             o = offset[key]
             out[key] = tail_cov[o : o + d, o : o + d].copy()
+            if share_tail is not None:
+                shares[key] = share_tail[o : o + d, o : o + d].copy()
         else:
             j, o = where[key]
             out[key] = diag[j][o : o + d, o : o + d].copy()
-    return out
+            if node_share is not None:
+                shares[key] = node_share[j][o : o + d, o : o + d].copy()
+    return out, shares

@@ -51,7 +51,7 @@ from signpose.estimator.camera import (
     undistort_px_jacobian,
     undistorted_cov,
 )
-from signpose.estimator.marginals import Conditional, selected_covariances
+from signpose.estimator.marginals import Conditional, selected_covariances_and_shares
 from signpose.estimator.perframe import keypoint_sigmas
 from signpose.estimator.projection import pixel_from_normalised, whitened
 from signpose.frontend.observations import FrameObservations
@@ -417,6 +417,15 @@ class SmootherResult:
             [rotation, translation] in the camera frame, or None.
         weights: (M,) GNC weight of each measurement (1 inlier, 0 outlier),
             or None when GNC did not run.
+        survey_sigma_xyz: (N, 3) the survey's share of ``sigma_xyz``, world axes
+            [m]: the sd that the landmark priors' means drawn as their sigmas say
+            (the map's N(0, sigma_m) per centre) give each position through the
+            smoother, ``sqrt(diag(Sigma_xP Lambda_P Sigma_Px))``. Every frame
+            that sees the same signs shares this part of its error: a flight's
+            positions move together by it (tests/test_survey_share.py: the
+            positions' finite-difference response to the centres gives the same).
+            None when not computed (no sigmas, or marginals from the Bayes tree:
+            Levenberg-Marquardt, GNC, iSAM2).
     """
 
     world_T_cam: np.ndarray
@@ -434,6 +443,7 @@ class SmootherResult:
     final_error: float = float("nan")
     cov6: np.ndarray | None = None
     weights: np.ndarray | None = None
+    survey_sigma_xyz: np.ndarray | None = None
 
 
 def _calibration(camera: CameraModel) -> gtsam.Cal3_S2:
@@ -560,6 +570,18 @@ class _GraphBuilder:
         for j in range(len(m.landmark_code)):
             offset = m.landmark_world[j] - centre[sign[j]]
             graph.add(gtsam.BetweenFactorPoint3(S(int(sign[j])), L(j), offset, tie))
+
+    def survey_priors(self) -> dict[int, np.ndarray]:
+        """Key -> (3, 3) information of each landmark prior (``landmark_factors``'s):
+        a rigid sign's centre, else every keypoint."""
+        if self.s.landmarks == RIGID:
+            sign, centre = self.signs()
+            sigma = np.zeros(len(centre))
+            sigma[sign] = self.m.landmark_sigma_m
+            return {S(k): np.eye(3) / float(sg) ** 2 for k, sg in enumerate(sigma)}
+        return {
+            L(j): np.eye(3) / self.landmark_sigma(j) ** 2 for j in range(len(self.m.landmark_code))
+        }
 
     def ordered(self, order: gtsam.Ordering) -> gtsam.Ordering:
         """``order`` with the rigid model's sign keys appended (eliminated last)."""
@@ -904,11 +926,11 @@ def smooth_batch(
     seconds = time.perf_counter() - t0
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(n)])
     lms = np.array([result.atPoint3(L(j)) for j in range(len(meas.landmark_code))]).reshape(-1, 3)
-    cov6 = None
+    cov6, share6 = None, None
     sigma_seconds = 0.0
     if _want_sigmas(s, n):
         t1 = time.perf_counter()
-        cov6 = _net_covariances(solved, n)
+        cov6, share6 = _net_covariances(solved, n, b.survey_priors())
         if cov6 is None:
             graph = g.graph
             if weights is not None:  # the marginals of the graph GNC converged to
@@ -932,15 +954,21 @@ def smooth_batch(
         final_error=float(g.graph.error(result)),
         cov6=cov6,
         weights=weights,
+        survey_sigma_xyz=None if share6 is None else _sigmas_from(share6, poses),
     )
 
 
-def _net_covariances(solved: _Solved | None, n: int) -> np.ndarray | None:
-    """(N, 6, 6) pose covariances from the solve's last Bayes net, or None without one."""
+def _net_covariances(
+    solved: _Solved | None, n: int, priors: dict[int, np.ndarray] | None = None
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """((N, 6, 6) pose covariances from the solve's last Bayes net, or None without one;
+    (N, 6, 6) the ``priors``' share of them, or None)."""
     if solved is None or solved.net is None:
-        return None
+        return None, None
     conds = _net_conditionals(solved.net)
-    return None if conds is None else _pose_covariances(conds, n)
+    if conds is None:
+        return None, None
+    return _pose_covariances_and_shares(conds, n, priors or {})
 
 
 def _without(graph: gtsam.NonlinearFactorGraph, drop: np.ndarray) -> gtsam.NonlinearFactorGraph:
@@ -1088,12 +1116,26 @@ def _net_conditionals(net: gtsam.GaussianBayesNet) -> list[Conditional] | None:
 
 def _pose_covariances(conds: list[Conditional], n_frames: int) -> np.ndarray | None:
     """(N, 6, 6) from conditionals frames first (the variables after the last frame: the tail)."""
+    return _pose_covariances_and_shares(conds, n_frames, {})[0]
+
+
+def _pose_covariances_and_shares(
+    conds: list[Conditional], n_frames: int, priors: dict[int, np.ndarray]
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``_pose_covariances`` and the share of the ``priors`` (tail key -> information) in
+    them (None without priors, or when one is not in the tail)."""
     frame_keys = {X(i) for i in range(n_frames)} | {V(i) for i in range(n_frames)}
     last = max((k for k, c in enumerate(conds) if c.key in frame_keys), default=-1)
     if sum(c.R.shape[0] for c in conds[last + 1 :]) > MAX_TAIL_DIM:
-        return None
-    got = selected_covariances(conds, last + 1, [X(i) for i in range(n_frames)])
-    return np.array([got[X(i)] for i in range(n_frames)]).reshape(n_frames, 6, 6)
+        return None, None
+    tail = {c.key for c in conds[last + 1 :]}
+    priors = priors if priors and all(k in tail for k in priors) else {}
+    wanted = [X(i) for i in range(n_frames)]
+    got, shares = selected_covariances_and_shares(conds, last + 1, wanted, priors)
+    cov = np.array([got[X(i)] for i in range(n_frames)]).reshape(n_frames, 6, 6)
+    if not shares:
+        return cov, None
+    return cov, np.array([shares[X(i)] for i in range(n_frames)]).reshape(n_frames, 6, 6)
 
 
 def _isam2_params(s: SmootherSettings) -> gtsam.ISAM2Params:
