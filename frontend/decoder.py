@@ -354,6 +354,16 @@ class DecoderSettings:
             rectangles' centres (False, biased under perspective; kept to
             measure that bias).
         region_margin: ``decode_region`` grows the box by this fraction per side.
+        recrop_cut_rim: when the crop cut the fitted disc's rim
+            (``cut_by_edge``), the disc's centre lies in the box and the
+            disc inside the image,
+            ``decode_region`` decodes once more on a crop around the disc
+            (its bounding box grown by ``region_margin``); the reading goes
+            through every check of the first, and counts only when the
+            disc it reads is centred in the box too. A detector region off the
+            sign by a third of its size (a wide lens's edge, where the
+            cascade's windows sit off the sign) then reads. A disc that the
+            image's border cuts stays refused.
         search_bars: also search every straight line through a black-read
             slot for a bar as black as the print beyond one rim crossing
             (``occlusion.straight_bars``), erasing the slot. Off: on the
@@ -383,6 +393,7 @@ class DecoderSettings:
     perspective_correction: bool = True
     region_margin: float = 0.25
     search_bars: bool = False
+    recrop_cut_rim: bool = True
 
 
 @dataclass(frozen=True)
@@ -398,7 +409,11 @@ class DecodeResult:
             in (centres at integers): ``center``, ``direction`` and each white
             ``slotK``. Empty when there is no code.
         ellipse: the disc's image ((cx, cy), (major, minor), angle_deg), full
-            axes, cv2.RotatedRect angle convention; None when unknown.
+            axes, cv2.RotatedRect angle convention; None when unknown. A
+            ``cut_by_edge`` refusal carries the disc the refused hypothesis
+            fitted (its rim partly outside the crop), an ``occluded`` or
+            ``code_not_in_map`` one the disc of the sign it read (when the
+            refusal came after the fit).
         quality: confidence in [0, 1] (bit margins and fit residual).
         sigma_px: estimated standard deviation of each keypoint coordinate
             [px], for the estimator's measurement noise.
@@ -1407,11 +1422,11 @@ def _initial_fit(
         # put its rim outside.
         span = float(np.ptp(rim, axis=0).max())
         plausible = span < 1.6 * max(w, h) and region.cut.value
-        return (
-            None,
-            major,
-            _fail(DecodeReason.CUT_BY_EDGE if plausible else DecodeReason.NO_LOCATION),
-        )
+        if not plausible:
+            return None, major, _fail(DecodeReason.NO_LOCATION)
+        # The fitted disc goes with the refusal: ``decode_region`` crops
+        # around it once more when the crop, not the image, cut the rim.
+        return None, major, _fail(DecodeReason.CUT_BY_EDGE, ellipse=ellipse)
     return image_H_sign, major, None
 
 
@@ -1734,7 +1749,9 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
         reading = _erased_under_plain_bands(region, image_H_sign, reading)
     code, occ, reason = _accept_code(seen, image_H_sign, reading, major_px)
     if code is None:
-        return _fail(reason, quality=reading.margin)
+        # A verdict about a sign read here carries where its disc is.
+        ellipse = _safe_disc_ellipse(image_H_sign) if reason in _FINAL_REASONS else None
+        return _fail(reason, quality=reading.margin, ellipse=ellipse)
     erased = tuple(k for k in range(1, N_BITS + 1) if occ.pattern[k - 1] == "x")
     kp_parts = [p for p in _CODE_PARTS[code][0] if p not in occ.covered_parts]
     refined = _refine(region, image_H_sign, kp_parts, occ.pattern, reading, major_px)
@@ -1917,6 +1934,57 @@ def _refit_fallback(image_H_sign: np.ndarray, cents: np.ndarray, valid: np.ndarr
     return h
 
 
+def _crop_bounds(
+    bbox_px: tuple[float, float, float, float], margin: float, iw: int, ih: int
+) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1) [px] of the box grown by ``margin`` per side, clipped to the image."""
+    x, y, bw, bh = bbox_px
+    return (
+        max(int(math.floor(x - margin * bw)), 0),
+        max(int(math.floor(y - margin * bh)), 0),
+        min(int(math.ceil(x + bw * (1 + margin))), iw),
+        min(int(math.ceil(y + bh * (1 + margin))), ih),
+    )
+
+
+def _ellipse_box(ellipse: Ellipse) -> tuple[float, float, float, float]:
+    """(x, y, w, h) [px] axis-aligned bounding box of a (full-axes, cv2 angle) ellipse."""
+    (cx, cy), (major, minor), angle_deg = ellipse
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    half_u = 0.5 * math.hypot(major * c, minor * s)
+    half_v = 0.5 * math.hypot(major * s, minor * c)
+    return cx - half_u, cy - half_v, 2.0 * half_u, 2.0 * half_v
+
+
+def _in_image(res: DecodeResult, x0: int, y0: int) -> DecodeResult:
+    """A crop's reading moved to the pixels of the image the crop starts at (x0, y0) of."""
+    ellipse = None
+    if res.ellipse is not None:
+        (cx, cy), axes, ang = res.ellipse
+        ellipse = ((cx + x0, cy + y0), axes, ang)
+    if res.code is None:
+        return replace(res, ellipse=ellipse)
+    return replace(
+        res,
+        keypoints_px={k: (u + x0, v + y0) for k, (u, v) in res.keypoints_px.items()},
+        ellipse=ellipse,
+        image_H_sign=_translated(res.image_H_sign, (x0, y0)),
+    )
+
+
+def _box_holds(bbox_px: tuple[float, float, float, float], uv_px: tuple[float, float]) -> bool:
+    """Whether the point lies in the (x, y, w, h) box: a disc fitted beside the
+    region is another sign's (the region's reading would carry a box off it)."""
+    x, y, bw, bh = bbox_px
+    return x <= uv_px[0] <= x + bw and y <= uv_px[1] <= y + bh
+
+
+def _disc_inside_image(ellipse: Ellipse, iw: int, ih: int, margin_px: float) -> bool:
+    """Whether the disc lies inside the (iw, ih) image: a rim the crop cut, not the image."""
+    u, v, bw, bh = _ellipse_box(ellipse)
+    return _inside(np.array([[u, v], [u + bw, v + bh]]), iw, ih, margin_px)
+
+
 def decode_region(
     image_gray: np.ndarray,
     bbox_px: tuple[float, float, float, float],
@@ -1930,31 +1998,39 @@ def decode_region(
         bbox_px: (x, y, w, h) detector box [px].
         codes: the map's codes (see ``decode_roi``).
         settings: tuning; the box grows by ``settings.region_margin`` per side.
+
+    A crop that cuts the rim of the disc it fitted (``cut_by_edge``) is read
+    once more around that disc when the disc is centred in the box and lies
+    inside the image (``settings.recrop_cut_rim``). A refusal's ellipse (see
+    ``DecodeResult.ellipse``) is in the image's pixels.
     """
     img = _as_gray(image_gray)
     ih, iw = img.shape[:2]
-    x, y, bw, bh = (float(v) for v in bbox_px)
-    m = settings.region_margin
-    x0 = max(int(math.floor(x - m * bw)), 0)
-    y0 = max(int(math.floor(y - m * bh)), 0)
-    x1 = min(int(math.ceil(x + bw * (1 + m))), iw)
-    y1 = min(int(math.ceil(y + bh * (1 + m))), ih)
+    box = tuple(float(v) for v in bbox_px)
+    codes = None if codes is None else frozenset(codes)
+    x0, y0, x1, y1 = _crop_bounds(box, settings.region_margin, iw, ih)
     if x1 - x0 < settings.min_sign_px or y1 - y0 < settings.min_sign_px:
         return _fail(DecodeReason.NO_SIGN)
-    res = decode_roi(img[y0:y1, x0:x1], codes, settings)
-    if res.code is None:
+    res = _in_image(decode_roi(img[y0:y1, x0:x1], codes, settings), x0, y0)
+    if not (
+        settings.recrop_cut_rim
+        and res.reason == DecodeReason.CUT_BY_EDGE
+        and res.ellipse is not None
+        and _box_holds(box, res.ellipse[0])
+        and _disc_inside_image(res.ellipse, iw, ih, settings.edge_margin_px)
+    ):
         return res
-    (cx, cy), axes, ang = res.ellipse
-    return DecodeResult(
-        code=res.code,
-        reason=res.reason,
-        keypoints_px={k: (u + x0, v + y0) for k, (u, v) in res.keypoints_px.items()},
-        ellipse=((cx + x0, cy + y0), axes, ang),
-        quality=res.quality,
-        sigma_px=res.sigma_px,
-        image_H_sign=_translated(res.image_H_sign, (x0, y0)),
-        residual_px=res.residual_px,
-        erased_slots=res.erased_slots,
-        keypoint_sigma_px=res.keypoint_sigma_px,
-        sigma_inputs=res.sigma_inputs,
-    )
+    # The crop, not the image, cut the rim of the box's sign: decode once
+    # more around the disc.
+    bounds = _crop_bounds(_ellipse_box(res.ellipse), settings.region_margin, iw, ih)
+    rx0, ry0, rx1, ry1 = bounds
+    if bounds == (x0, y0, x1, y1) or min(rx1 - rx0, ry1 - ry0) < settings.min_sign_px:
+        return res
+    again = _in_image(decode_roi(img[ry0:ry1, rx0:rx1], codes, settings), rx0, ry0)
+    # A verdict about the box's sign (read, occluded, not in the map) stands;
+    # a second failure about the crop, or a sign beside the box, does not
+    # replace the first.
+    verdict = again.ok or again.reason in _FINAL_REASONS
+    if verdict and again.ellipse is not None and _box_holds(box, again.ellipse[0]):
+        return again
+    return res

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
-from signpose.frontend.decoder import DecodeReason, DecodeResult
+from signpose.frontend import detector as detector_module
+from signpose.frontend.decoder import DecodeReason, DecodeResult, DecoderSettings, decode_region
 from signpose.frontend.detector import (
     DetectionResult,
     DetectorMode,
@@ -276,8 +278,20 @@ def test_observations_carry_the_decoders_erased_slots_and_keypoint_sigmas():
     assert obs.sigma_px == pytest.approx(0.08)
 
 
-def test_on_a_photograph_with_dark_regions_a_wider_window_range_finds_a_hidden_sign(tmp_path):
-    """A dark background joined to a sign's blob misstates its size (fast_scale_dark)."""
+def test_on_a_photograph_with_dark_regions_a_wider_window_range_finds_a_hidden_sign(
+    tmp_path, monkeypatch
+):
+    """A dark background joined to a sign's blob misstates its size (fast_scale_dark).
+
+    Measured without the decoder's second crop around a disc the region's crop
+    cuts (``recrop_cut_rim``), which reads the narrow range's region too.
+    """
+
+    def decode(gray, box, codes=None, settings=None):
+        base = DecoderSettings() if settings is None else settings
+        return decode_region(gray, box, codes, replace(base, recrop_cut_rim=False))
+
+    monkeypatch.setattr(detector_module, "decode_region", decode)
     sign_map = load_map(bundled_map_path())
     settings = SimSettings(
         frames=3,

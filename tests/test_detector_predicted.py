@@ -90,10 +90,11 @@ def test_the_predicted_box_moves_with_the_offset_of_the_signs_found():
     """Every prediction of a frame off by the same shift (the camera's turn since
     the predicted pose): the box of a sign left to the decoder is moved by the
     offset of the nearest sign found, where the decoder reads it; unmoved, the
-    box cuts its rim and the decoder refuses it."""
+    box cuts its rim and the decoder refuses it (the box misses the sign's
+    centre, so the decoder's second crop around its disc is not made)."""
     img, truth = _frame(np.random.default_rng(5))
     det = SignDetector(settings=NO_TRACKED_WINDOWS)
-    shift = 0.4 * SIGN_PX
+    shift = 0.6 * SIGN_PX
     (c_a, _), (c_b, _) = truth["1011"], truth["0110"]
     preds = [
         PredictedSign("1011", (c_a[0] + shift, c_a[1]), SIGN_PX),

@@ -5,13 +5,14 @@ from __future__ import annotations
 import importlib.util
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 from signpose.frontend import detector as detector_module
-from signpose.frontend.decoder import DecodeReason, DecodeResult, decode_region
+from signpose.frontend.decoder import DecodeReason, DecodeResult, DecoderSettings, decode_region
 from signpose.frontend.detector import DetectorSettings, SignDetector
 from signpose.frontend.sign import render_sign_png
 from signpose.maps.loader import bundled_map_path, load_map
@@ -22,6 +23,20 @@ from signpose.sim.flight import SimSettings, simulate
 DIAMETER_PX = 60  # its cut box (36 px) is above retry_small_px
 CUT_BOX_FRAC = 0.6  # a region this fraction of the disc: the default crop cuts its rim
 NO_RETRIES = DetectorSettings(retry_margins=(), retry_small_margins=())
+# The decoder's own second crop around the disc it fitted reads these centred
+# regions already; the retries are measured without it.
+NO_RECROP = DecoderSettings(recrop_cut_rim=False)
+
+
+@pytest.fixture
+def without_recrop(monkeypatch):
+    """The detector's decoder with ``recrop_cut_rim`` off (the retries' own effect)."""
+
+    def decode(gray, box, codes=None, settings=None):
+        base = DecoderSettings() if settings is None else settings
+        return decode_region(gray, box, codes, replace(base, recrop_cut_rim=False))
+
+    monkeypatch.setattr(detector_module, "decode_region", decode)
 
 
 def _sign_frame(
@@ -41,9 +56,18 @@ def _sign_frame(
     return frame, (100 - side / 2, 100 - side / 2, side, side)
 
 
-def test_a_region_whose_crop_cuts_the_rim_is_read_with_a_wider_crop():
+def test_the_decoder_reads_a_centred_region_whose_crop_cuts_the_rim_around_its_disc():
     frame, box = _sign_frame()
-    assert decode_region(frame, box).reason == DecodeReason.CUT_BY_EDGE  # the default crop
+    assert decode_region(frame, box, settings=NO_RECROP).reason == DecodeReason.CUT_BY_EDGE
+    res = decode_region(frame, box)
+    assert res.code == "0101"
+    assert math.dist(res.keypoints_px["center"], (99.5, 99.5)) < 1.0
+    assert SignDetector(settings=NO_RETRIES).decode_box(frame, box, n_windows=1).code == "0101"
+
+
+def test_a_region_whose_crop_cuts_the_rim_is_read_with_a_wider_crop(without_recrop):
+    frame, box = _sign_frame()
+    assert decode_region(frame, box, settings=NO_RECROP).reason == DecodeReason.CUT_BY_EDGE
     det = SignDetector()
     res = det.decode_box(frame, box, n_windows=40)
     assert res.code == "0101"
@@ -62,11 +86,11 @@ def test_a_region_whose_crop_cuts_the_rim_is_read_with_a_wider_crop():
     assert det._decode(frame, np.array([box]), np.array([40]), None, retry=False) == ((), 1)
 
 
-def test_a_small_region_is_retried_whatever_its_window_count():
+def test_a_small_region_is_retried_whatever_its_window_count(without_recrop):
     """The sliding window's 24 px windows fit a sign near that size only a few times."""
     frame, box = _sign_frame(diameter_px=40)
     assert box[2] <= DetectorSettings().retry_small_px
-    assert decode_region(frame, box).reason == DecodeReason.CUT_BY_EDGE
+    assert decode_region(frame, box, settings=NO_RECROP).reason == DecodeReason.CUT_BY_EDGE
     assert SignDetector().decode_box(frame, box, n_windows=2).code == "0101"
     off = SignDetector(settings=DetectorSettings(retry_small_px=0.0))
     assert off.decode_box(frame, box, n_windows=2).code is None
@@ -131,7 +155,7 @@ def _eval_detector():
     return mod
 
 
-def test_eval_detector_names_the_cause_of_each_miss():
+def test_eval_detector_names_the_cause_of_each_miss(without_recrop):
     ev = _eval_detector()
     frame, cut_box = _sign_frame()
     side = float(DIAMETER_PX)
@@ -195,7 +219,7 @@ def test_a_frame_retries_at_most_retry_max_regions_regions_the_strongest_first(m
     assert retried == [10.0] * n_margins + [50.0] * n_margins + [30.0] * n_margins
 
 
-def test_the_retries_time_is_reported_as_a_part_of_the_decoding():
+def test_the_retries_time_is_reported_as_a_part_of_the_decoding(without_recrop):
     """DetectionResult.timing["retry"]: the crop retries' ms, within "decode"."""
     frame, box = _sign_frame()
     det = SignDetector()
