@@ -397,11 +397,12 @@ def predict_signs(
         return []
     centers = np.array([s.center_m for s in signs])
     px, depth = pixel_from_world_point(camera, world_T_cam, centers)
+    diameters = _image_diameters_px(camera, world_T_cam, centers, [s.diameter_m for s in signs])
     inside = []
-    for s, (u, v), z in zip(signs, px, depth, strict=True):
+    for s, (u, v), z, d_lens in zip(signs, px, depth, diameters, strict=True):
         if not (z > MIN_PREDICTED_DEPTH_M and np.isfinite(u) and np.isfinite(v)):
             continue
-        d = camera.fx * s.diameter_m / z
+        d = float(d_lens) if np.isfinite(d_lens) else camera.fx * s.diameter_m / z
         m = margin * d
         if -m <= u <= camera.width - 1 + m and -m <= v <= camera.height - 1 + m:
             inside.append((s, float(u), float(v), float(d)))
@@ -414,6 +415,46 @@ def predict_signs(
         PredictedSign(s.code, (u, v), d, h)
         for (s, u, v, d), h in zip(inside, homographies, strict=True)
     ]
+
+
+def _image_diameters_px(
+    camera: CameraModel, world_T_cam: np.ndarray, centers_m: np.ndarray, diameters_m
+) -> np.ndarray:
+    """(N,) image diameter [px] of each disc turned toward the camera, through the lens.
+
+    The longer of the images of two diameters across the viewing ray, so a
+    wide lens's edge (where fx * D / z overstates an equidistant image up to
+    twice at 60 deg off the axis) is sized as the lens draws it. NaN where a
+    rim point falls behind the camera or off the lens model.
+
+    Args:
+        centers_m: (N, 3) disc centres in the world frame [m].
+        diameters_m: (N,) disc diameters [m].
+    """
+    centers_m = np.asarray(centers_m, dtype=float).reshape(-1, 3)
+    ray = centers_m - world_T_cam[:3, 3]
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    x_cam = world_T_cam[:3, 0]
+    across = x_cam - (ray @ x_cam)[:, None] * ray
+    across /= np.linalg.norm(across, axis=1, keepdims=True)
+    other = np.cross(ray, across)
+    half = 0.5 * np.asarray(diameters_m, dtype=float)[:, None]
+    ends = np.stack(
+        [
+            centers_m + half * across,
+            centers_m - half * across,
+            centers_m + half * other,
+            centers_m - half * other,
+        ],
+        axis=1,
+    )  # (N, 4, 3)
+    px, _ = pixel_from_world_point(camera, world_T_cam, ends.reshape(-1, 3))
+    px = px.reshape(-1, 4, 2)
+    chords = np.stack(
+        [np.linalg.norm(px[:, 0] - px[:, 1], axis=1), np.linalg.norm(px[:, 2] - px[:, 3], axis=1)],
+        axis=1,
+    )
+    return chords.max(axis=1)
 
 
 def homography_points(signs: Iterable[MapSign]) -> dict[str, np.ndarray]:
