@@ -179,6 +179,10 @@ class MethodEstimate:
         signs_used: (N,) distinct map signs used per frame.
         status: (N,) how far each pose can be trusted (a PoseStatus), or why
             there is none (a PoseFailure).
+        survey_sigma_xyz: (N, 3) the survey's share of ``sigma_xyz`` [m]
+            (``SmootherResult.survey_sigma_xyz``: the part of the error that
+            every frame seeing the same signs shares), or None (per-frame
+            methods, no marginals).
     """
 
     name: str
@@ -188,6 +192,7 @@ class MethodEstimate:
     sigma_xyz: np.ndarray
     signs_used: np.ndarray
     status: tuple[PoseState, ...]
+    survey_sigma_xyz: np.ndarray | None = None
 
     @property
     def coverage(self) -> float:
@@ -388,6 +393,7 @@ def _from_smoother(
         world_T_cam=T,
         valid=valid,
         sigma_xyz=sigma,
+        survey_sigma_xyz=None if causal else r.survey_sigma_xyz,
         signs_used=r.signs_used.copy(),
         status=status,
     )

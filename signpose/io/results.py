@@ -181,6 +181,29 @@ def status_line(result: EstimateResult) -> str:
     return "status: " + "; ".join(parts)
 
 
+def survey_share(m: MethodEstimate) -> dict | None:
+    """The survey's share of a method's pose variance (report.json ``survey_share``):
+    the part of the error shared by every frame that sees the same signs, so a
+    flight's poses can all sit 2-3 sigma off together in an unlucky survey
+    (scripts/eval_flight.py ``--survey-response``)."""
+    if m.survey_sigma_xyz is None:
+        return None
+    ok = m.valid & np.all(np.isfinite(m.sigma_xyz), axis=1) & np.all(m.sigma_xyz > 0, axis=1)
+    if not ok.any():
+        return None
+    var = np.sum(m.sigma_xyz[ok] ** 2, axis=1)
+    share = np.sum(m.survey_sigma_xyz[ok] ** 2, axis=1) / var
+    return {
+        "of_variance_median": round(float(np.median(share)), 3),
+        "sigma_m_median_xyz": np.median(m.survey_sigma_xyz[ok], axis=0).round(4).tolist(),
+        "note": (
+            "the map's survey error is this share of each pose's variance and is the same "
+            "for every frame that sees the same signs: the poses' errors move together, not "
+            "frame by frame"
+        ),
+    }
+
+
 def report_dict(result: EstimateResult) -> dict:
     """The content of report.json (before any metrics are added)."""
     n = len(result.frames)
@@ -196,6 +219,9 @@ def report_dict(result: EstimateResult) -> dict:
             "status": status_shares(m),
             "weak": _weak_poses(result, m),
         }
+        share = survey_share(m)
+        if share is not None:
+            coverage[name]["survey_share"] = share
     o = result.outliers.to_dict()
     o["n_downweighted"] = len(o["downweighted"])
     o["n_rejected"] = {
