@@ -70,7 +70,8 @@ Then, beyond the paper:
   contours (no_location, cut_by_edge: ~20 % of glare crops) or whose glow
   a cubic does not follow (a narrow spot).
 * the paper's first robustness rule: a code that is not in ``codes`` (the
-  map's codes) is dropped (``code_not_in_map``).
+  map's codes) is dropped (``code_not_in_map``); the refusal keeps the code
+  read in ``unknown_code`` (a sign the map misses is then countable).
 * keypoint noise: ``keypoint_sigma_px`` per keypoint and axis from
   ``frontend.keypoint_noise``, calibrated against the simulator by
   scripts/calibrate_sigma.py.
@@ -429,6 +430,10 @@ class DecodeResult:
             calibrated standard deviation of each coordinate (see
             ``keypoint_sigmas``); ``sigma_px`` is their geometric mean.
         sigma_inputs: what ``keypoint_sigmas`` was given (for calibration).
+        unknown_code: a ``code_not_in_map`` refusal's reading: the code the
+            crop shows, verified as any accepted code is, that the map lacks
+            (``code`` stays None); None otherwise. For telling a user which
+            sign the map misses.
     """
 
     code: str | None
@@ -442,6 +447,7 @@ class DecodeResult:
     erased_slots: tuple[int, ...] = ()
     keypoint_sigma_px: dict[str, tuple[float, float]] = field(default_factory=dict)
     sigma_inputs: SigmaInputs | None = None
+    unknown_code: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -457,9 +463,14 @@ class _Hole:
 
 
 def _fail(
-    reason: DecodeReason, quality: float = 0.0, ellipse: Ellipse | None = None
+    reason: DecodeReason,
+    quality: float = 0.0,
+    ellipse: Ellipse | None = None,
+    unknown_code: str | None = None,
 ) -> DecodeResult:
-    return DecodeResult(code=None, reason=reason, quality=quality, ellipse=ellipse)
+    return DecodeResult(
+        code=None, reason=reason, quality=quality, ellipse=ellipse, unknown_code=unknown_code
+    )
 
 
 def _moments(contour: np.ndarray) -> tuple[float, float, float, tuple[float, float, float]] | None:
@@ -1751,7 +1762,8 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
     if code is None:
         # A verdict about a sign read here carries where its disc is.
         ellipse = _safe_disc_ellipse(image_H_sign) if reason in _FINAL_REASONS else None
-        return _fail(reason, quality=reading.margin, ellipse=ellipse)
+        unknown = occ.pattern if reason == DecodeReason.CODE_NOT_IN_MAP else None
+        return _fail(reason, quality=reading.margin, ellipse=ellipse, unknown_code=unknown)
     erased = tuple(k for k in range(1, N_BITS + 1) if occ.pattern[k - 1] == "x")
     kp_parts = [p for p in _CODE_PARTS[code][0] if p not in occ.covered_parts]
     refined = _refine(region, image_H_sign, kp_parts, occ.pattern, reading, major_px)

@@ -76,6 +76,8 @@ NOT_RETRIED = frozenset({DecodeReason.OCCLUDED, DecodeReason.CODE_NOT_IN_MAP})
 
 # A region the decoder did not read: its box (x, y, w, h) [px] and why.
 Refusal = tuple[tuple[float, float, float, float], DecodeReason]
+# A region read as a code the map lacks: that code and the box (x, y, w, h) [px].
+Unknown = tuple[str, tuple[float, float, float, float]]
 
 
 class DetectorMode(enum.StrEnum):
@@ -314,6 +316,14 @@ class DetectionResult:
         verifications: tracking only: the outcome of each prediction that
             carried a homography (``frontend.verify``), in prediction order;
             the verified ones are in ``detections`` without a search.
+        unknown: (code read, region box (x, y, w, h) [px]) of each region the
+            decoder refused only because the map has no sign of its code
+            (``code_not_in_map``, after the crop retries; the code is the
+            decoder's ``unknown_code``), ordered by code then position. One
+            entry per sign: regions of one code centred within half a region
+            of each other (overlapping regions of one sign; tracking's and
+            the full frame's search) are one. Not in ``detections``, which
+            do not depend on it.
     """
 
     detections: tuple[SignObservation, ...]
@@ -324,6 +334,7 @@ class DetectionResult:
     fell_back: bool = False
     regions: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     verifications: tuple[VerifyOutcome, ...] = ()
+    unknown: tuple[Unknown, ...] = ()
 
 
 class Detector(Protocol):
@@ -791,12 +802,22 @@ class SignDetector:
         regions, counts = self.merge(raw)
         t2 = time.perf_counter()
         timing["merge"] = timing.get("merge", 0.0) + (t2 - t1) * 1e3
-        dets, undecoded = self._decode(gray, regions, counts, codes, retry, refused, timing)
+        unknown: list[Unknown] = []
+        dets, undecoded = self._decode(
+            gray, regions, counts, codes, retry, refused, timing, unknown
+        )
         t3 = time.perf_counter()
         timing["decode"] = timing.get("decode", 0.0) + (t3 - t2) * 1e3
         timing["total"] = (t3 - t0) * 1e3
         return DetectionResult(
-            dets, len(regions), undecoded, timing, DetectorMode(mode), fell_back, regions
+            dets,
+            len(regions),
+            undecoded,
+            timing,
+            DetectorMode(mode),
+            fell_back,
+            regions,
+            unknown=_one_per_region(unknown),
         )
 
     def _decode(
@@ -808,9 +829,11 @@ class SignDetector:
         retry: bool = True,
         refused: list[Refusal] | None = None,
         timing: dict[str, float] | None = None,
+        unknown: list[Unknown] | None = None,
     ) -> tuple[tuple[SignObservation, ...], int]:
         """(readings, one per sign; regions that did not read), with crop retries if
-        ``retry``; each region that did not read appended to ``refused`` with its reason;
+        ``retry``; each region that did not read appended to ``refused`` with its reason,
+        each read as a code the map lacks to ``unknown`` with that code;
         the retries' time added to ``timing["retry"]`` [ms] (a part of the decoding's)."""
         codes = tuple(codes) if codes is not None else None
         if not self.settings.decode:
@@ -838,6 +861,9 @@ class SignDetector:
             refused += [
                 (box, res.reason) for box, res in zip(boxes, results, strict=True) if not res.ok
             ]
+        if unknown is not None:
+            read = (_unknown(res, box) for box, res in zip(boxes, results, strict=True))
+            unknown += [u for u in read if u is not None]
         found = [
             _observation(res, box, n)
             for res, box, n in zip(results, boxes, counts, strict=True)
@@ -879,13 +905,17 @@ class SignDetector:
         res: DecodeResult,
     ) -> DecodeResult:
         """The first reading with the ``retry_margins`` crops in turn (a small region's
-        then with ``retry_small_margins``), else ``res``."""
+        then with ``retry_small_margins``), else the first retry's ``code_not_in_map``
+        refusal (the sign read, as a code the map lacks), else ``res``."""
         small = max(box[2], box[3]) <= self.settings.retry_small_px
+        unknown = None
         for settings in self._retry_small_settings if small else self._retry_settings:
             again = decode_region(gray, box, codes, settings)
             if again.ok:
                 return again
-        return res
+            if unknown is None and again.reason == DecodeReason.CODE_NOT_IN_MAP:
+                unknown = again
+        return res if unknown is None else unknown
 
     def decode_box(
         self,
@@ -977,7 +1007,8 @@ class SignDetector:
         predictions = [
             p if isinstance(p, PredictedSign) else PredictedSign(*p) for p in predictions
         ]
-        verified, outcomes, rest = self._verify_predicted(gray, predictions, codes)
+        unknown: list[Unknown] = []  # the anchors' and the predicted boxes' readings
+        verified, outcomes, rest = self._verify_predicted(gray, predictions, codes, unknown)
         t1 = time.perf_counter()
         raw = self._tracked_raw(gray, rest)
         timing = {"verify": (t1 - t0) * 1e3, "cascade": (time.perf_counter() - t1) * 1e3}
@@ -986,13 +1017,14 @@ class SignDetector:
         t2 = time.perf_counter()
         tried: set[tuple[float, float, float, float]] = set()  # boxes decoded at predictions
         verified += self._read_at_predictions(
-            gray, predictions, verified + list(res.detections), codes, refused, tried
+            gray, predictions, verified + list(res.detections), codes, refused, tried, unknown
         )
         timing["decode"] += timing["verify"] + (time.perf_counter() - t2) * 1e3
         res = replace(
             res,
             detections=one_per_sign(verified + list(res.detections)),
             verifications=outcomes,
+            unknown=_one_per_region(unknown + list(res.unknown)),
         )
         if self._tracking_held(res, predictions, gray.shape, refresh):
             return res
@@ -1000,7 +1032,7 @@ class SignDetector:
         full = self._search(gray, codes, "fast", refused)
         t3 = time.perf_counter()
         verified += self._read_at_predictions(
-            gray, predictions, verified + list(full.detections), codes, refused, tried
+            gray, predictions, verified + list(full.detections), codes, refused, tried, unknown
         )
         full.timing["decode"] += (time.perf_counter() - t3) * 1e3
         # Every stage of both searches (the verification's time kept too).
@@ -1017,12 +1049,18 @@ class SignDetector:
             True,
             full.regions,
             outcomes,
+            _one_per_region(unknown + list(res.unknown) + list(full.unknown)),
         )
 
     def _verify_predicted(
-        self, gray: np.ndarray, predictions: Sequence[PredictedSign], codes: tuple[str, ...] | None
+        self,
+        gray: np.ndarray,
+        predictions: Sequence[PredictedSign],
+        codes: tuple[str, ...] | None,
+        unknown: list[Unknown] | None = None,
     ) -> tuple[list[SignObservation], tuple[VerifyOutcome, ...], list[PredictedSign]]:
-        """(observations found, verification outcomes, predictions left to search).
+        """(observations found, verification outcomes, predictions left to search);
+        an anchor's regions read as codes the map lacks appended to ``unknown``.
 
         The predictions of one frame come from one predicted pose, so they are
         off by nearly the same image shift (mostly the camera's rotation since
@@ -1049,7 +1087,8 @@ class SignDetector:
         ]
         found, offsets, outcomes, done = _verify_in_turn(gray, predictions, order, codes, [], [])
         if order and not offsets:
-            for j, obs in self._anchor(gray, predictions[order[0]], predictions, done, codes):
+            anchor = self._anchor(gray, predictions[order[0]], predictions, done, codes, unknown)
+            for j, obs in anchor:
                 found.append(obs)
                 offsets.append(_offset(obs, predictions[j]))
                 done.add(j)
@@ -1076,6 +1115,7 @@ class SignDetector:
         codes: tuple[str, ...] | None,
         refused: Sequence[Refusal] = (),
         tried: set[tuple[float, float, float, float]] | None = None,
+        unknown: list[Unknown] | None = None,
     ) -> list[SignObservation]:
         """The predicted signs the tracked search did not find, decoded in full on
         their predicted boxes (``track_decode_predicted``).
@@ -1094,7 +1134,8 @@ class SignDetector:
         eval_flight's quick flights 2 of the 55 that read.
         A box in ``tried`` is not decoded again (a frame that falls back to the
         full-frame search reads its predictions twice: the box, crop and
-        settings the same, so is the verdict); each box read is added.
+        settings the same, so is the verdict); each box read is added. A box read
+        as a code the map lacks is appended to ``unknown``.
         """
         if not self.settings.decode or not self.settings.track_decode_predicted:
             return []
@@ -1121,6 +1162,8 @@ class SignDetector:
                     continue
                 tried.add(box)
             res = decode_region(gray, box, codes, self._predicted_settings)
+            if unknown is not None and (u := _unknown(res, box)) is not None:
+                unknown.append(u)
             if res.ok and res.code == p.code:
                 # No cascade window vouches for it: scored as a verified sign is.
                 out.append(_observation(res, box, math.inf))
@@ -1133,6 +1176,7 @@ class SignDetector:
         predictions: Sequence[PredictedSign],
         done: set[int],
         codes: tuple[str, ...] | None,
+        unknown: list[Unknown] | None = None,
     ) -> list[tuple[int, SignObservation]]:
         """(prediction index, reading) of the predicted signs read around ``p``.
 
@@ -1143,7 +1187,7 @@ class SignDetector:
         regions, counts = self.merge(
             self._tracked_raw(gray, [p], self.settings.track_anchor_margin)
         )
-        dets, _ = self._decode(gray, regions, counts, codes, retry=False)
+        dets, _ = self._decode(gray, regions, counts, codes, retry=False, unknown=unknown)
         out = []
         for j, q in enumerate(predictions):
             mine = [d for d in dets if d.code == q.code]
@@ -1224,6 +1268,31 @@ def _observation(
             for k, (su, sv) in res.keypoint_sigma_px.items()
             if k in res.keypoints_px
         },
+    )
+
+
+def _unknown(res: DecodeResult, box: tuple[float, float, float, float]) -> Unknown | None:
+    """(code read, box) when the region was refused only for a code the map lacks."""
+    if res.reason != DecodeReason.CODE_NOT_IN_MAP or res.unknown_code is None:
+        return None
+    return res.unknown_code, tuple(float(v) for v in box)
+
+
+def _one_per_region(found: Sequence[Unknown]) -> tuple[Unknown, ...]:
+    """``found`` without repeats: an entry of a code centred within half a region
+    of an earlier one of that code is the same sign read again (another search)."""
+    kept: list[Unknown] = []
+    for code, box in found:
+        centre = (box[0] + 0.5 * box[2], box[1] + 0.5 * box[3])
+        if not any(
+            k_code == code
+            and math.dist(centre, (kb[0] + 0.5 * kb[2], kb[1] + 0.5 * kb[3]))
+            <= 0.5 * max(box[2], box[3], kb[2], kb[3])
+            for k_code, kb in kept
+        ):
+            kept.append((code, box))
+    return tuple(
+        sorted(kept, key=lambda u: (u[0], u[1][0] + 0.5 * u[1][2], u[1][1] + 0.5 * u[1][3]))
     )
 
 
