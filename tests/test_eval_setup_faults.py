@@ -154,6 +154,9 @@ def test_verdicts(faults):
     assert faults.verdict(far, ref) == "SILENT"
     assert faults.verdict(far | {"stderr_warnings": ["warning: x"]}, ref) == "told*"
     assert faults.verdict(far | {"exit": 2}, ref) == "refused"
+    # far off but every pose weak: no accuracy claimed (the statuses tell)
+    weak = {"exit": 0, "stderr_warnings": [], "methods": {"smoothed": _m(0.31, 0, 0)}}
+    assert faults.verdict(weak, ref) == "weak"
 
 
 def _m(rmse: float, ok: int, beyond: int) -> dict:
