@@ -692,7 +692,7 @@ def refusal_counts(refused: Iterable[RefusedObservation]) -> dict[str, int]:
 def unknown_readings(frame: int, result: DetectionResult) -> list[RefusedObservation]:
     """The decoder's readings of codes the map does not have, as refusals."""
     out = []
-    for code, (x, y, w, h) in getattr(result, "unknown", ()):
+    for code, (x, y, w, h) in result.unknown:
         centre = (x + w / 2, y + h / 2)
         sign = SignObservation(code, {"center": centre}, bbox_px=(x, y, w, h), score=0.0)
         out.append(RefusedObservation(frame, RefusalReason.CODE_NOT_IN_MAP, sign, None, code))
@@ -1799,7 +1799,7 @@ def run(
     made = {"detector": detector, "detector_factory": detector_factory}
     obs, per_frame = _observe_run(source, sign_map, cam, s, progress, out, made)
     _warn(echo, obs.problems)
-    unknown = _codes_checked(obs, sign_map, str(source.path), echo)
+    unknown = _codes_checked(obs, sign_map, str(source.path))
     _check_gt_overlap(obs.frames, source.path, gt, gt_path)
     with _plotters(s) as plotters:  # started now: their start overlaps the estimation
         t0 = time.perf_counter()
@@ -1835,15 +1835,11 @@ def run(
     return _write_reports(out, result, section, begun)
 
 
-def _codes_checked(
-    obs: ObserveResult, sign_map: SignMap, where: str, echo: Callable[[str], None] | None
-) -> list[str]:
+def _codes_checked(obs: ObserveResult, sign_map: SignMap, where: str) -> list[str]:
     """``check_codes_seen``, then the warnings about codes the map does not have
-    (``unknown_code_warnings``), told now and returned for report.json."""
+    (``unknown_code_warnings``; told with the estimator's, and in report.json)."""
     check_codes_seen(obs.frames, sign_map, where, obs.refused)
-    unknown = unknown_code_warnings(obs.refused, sign_map.source or "the map")
-    _warn(echo, unknown, where=where)
-    return unknown
+    return unknown_code_warnings(obs.refused, sign_map.source or "the map")
 
 
 def _checked_against_survey(
@@ -1855,7 +1851,7 @@ def _checked_against_survey(
 ) -> tuple[EstimateResult, RefinedMap | None]:
     """``estimate`` with the poses of the frames that see a sign the flight moved far
     from its survey marked suspect (``refine.survey_checked``), and the flight's map;
-    ``more_warnings`` (already told) added to its warnings for report.json."""
+    ``more_warnings`` added to its warnings (told to the user, in report.json)."""
     refined = refine_flight(list(obs.frames), sign_map, cam, estimate)
     checked = survey_checked(estimate, refined, obs.frames)
     if more_warnings:
