@@ -167,6 +167,13 @@ def test_trust_warnings_name_what_to_check(tmp_path):
     moved = _write_json(tmp_path / "map_refined.json", {"moved": ["0100"], "moved_sigmas": 3.0})
     (line,) = trust_warnings([moved])
     assert "sign(s) 0100 more than 3 survey sigmas" in line
+    # a sign past the survey check is named by that check's own warning, not twice
+    signs = [{"code": "0100", "moved_sigmas": 3.5}, {"code": "0101", "moved_sigmas": 45.0}]
+    both = {"moved": ["0100", "0101"], "moved_sigmas": 3.0, "signs": signs}
+    (line,) = trust_warnings([_write_json(tmp_path / "map_refined.json", both)])
+    assert "sign(s) 0100 more than" in line and "0101" not in line
+    far = {"moved": ["0101"], "moved_sigmas": 3.0, "signs": signs[1:]}
+    assert trust_warnings([_write_json(tmp_path / "map_refined.json", far)]) == []
     assert trust_warnings([]) == []  # files of an earlier run in the folder are not read
 
 

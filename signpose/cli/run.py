@@ -24,6 +24,7 @@ from signpose.cli import (
 from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.fusion import FusionSettings, body_T_cam_from_mounting
+from signpose.estimator.refine import SUSPECT_MOVED_SIGMAS
 from signpose.estimator.smoother import SmootherSettings
 from signpose.io.camera_file import load_camera
 from signpose.io.clock import parse_start_time
@@ -272,7 +273,13 @@ def trust_warnings(files: tuple[Path, ...] | list[Path]) -> list[str]:
             )
     if "map_refined.json" in by_name:
         refined = read_report(by_name["map_refined.json"])
-        if moved := refined.get("moved"):
+        # The signs beyond the survey check's threshold are named by its own warning.
+        named = {
+            s.get("code")
+            for s in refined.get("signs", [])
+            if s.get("moved_sigmas", 0.0) > SUSPECT_MOVED_SIGMAS
+        }
+        if moved := [c for c in refined.get("moved", []) if c not in named]:
             lines.append(
                 f"warning: the flight puts sign(s) {', '.join(moved)} more than "
                 f"{refined.get('moved_sigmas', 3):g} survey sigmas from the map: check the survey "
