@@ -386,14 +386,16 @@ def _from_smoother(
     T = np.where(valid[:, None, None], T, np.eye(4))
     if status is None:
         status = tuple(PoseStatus.OK if o else PoseStatus.BRIDGED for o in r.observed)
-    sigma = np.full_like(r.sigma_xyz, np.nan) if causal else r.sigma_xyz
+    sigma = r.sigma_xyz
+    if causal:
+        sigma = np.full_like(sigma, np.nan) if r.causal_sigma_xyz is None else r.causal_sigma_xyz
     return MethodEstimate(
         name=name,
         stamps_s=stamps,
         world_T_cam=T,
         valid=valid,
         sigma_xyz=sigma,
-        survey_sigma_xyz=None if causal else r.survey_sigma_xyz,
+        survey_sigma_xyz=None if causal else getattr(r, "survey_sigma_xyz", None),  # fused: none
         signs_used=r.signs_used.copy(),
         status=status,
     )
@@ -769,7 +771,8 @@ def _smoothed(
     status = _smoothed_status(meas.subset(active), r, camera, s.status)
     methods = {"smoothed": _from_smoother("smoothed", stamps, r, status=status)}
     if causal.causal_world_T_cam is not None:
-        methods["causal"] = _from_smoother("causal", stamps, causal, causal=True)
+        scale = pixel_scale * pose_scale
+        methods["causal"] = _causal_method(stamps, causal, r, meas.subset(active), camera, s, scale)
     down, mis = _outliers(meas, r, frames, sign_map, camera, s, gated)
     fused = None
     if telemetry is not None:  # the smoothed graph with the drone's sensors, from its solution
@@ -789,6 +792,34 @@ def _smoothed(
         pose_scale=pose_scale,
         pixel_scale=pixel_scale,
     )
+
+
+def _causal_method(
+    stamps: np.ndarray,
+    causal: SmootherResult,
+    final: SmootherResult,
+    kept: Measurements,
+    camera: CameraModel,
+    s: EstimatorSettings,
+    scale: float,
+) -> MethodEstimate:
+    """iSAM2's filter estimate of each frame as the method "causal".
+
+    Its sigmas are the filter's marginals times ``scale`` (the residual and
+    pose noise scales the smoothed sigmas got); its statuses the smoothed poses' tests on the
+    measurements the final solve kept, at the filter's poses and the final
+    landmarks: a frame the filter let an outlier pull (it runs before the
+    innovation test and the final kernel) is ``suspect``, not ``ok``.
+    """
+    sigma = None if causal.causal_sigma_xyz is None else causal.causal_sigma_xyz * scale
+    as_filter = replace(
+        causal,
+        world_T_cam=causal.causal_world_T_cam,
+        sigma_xyz=np.full_like(causal.sigma_xyz, np.nan) if sigma is None else sigma,
+        landmarks_world=final.landmarks_world,
+    )
+    status = _smoothed_status(kept, as_filter, camera, s.status)
+    return _from_smoother("causal", stamps, replace(causal, causal_sigma_xyz=sigma), True, status)
 
 
 def _scaled_measurements(meas: Measurements, scale: float) -> Measurements:

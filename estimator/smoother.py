@@ -406,6 +406,9 @@ class SmootherResult:
         landmarks_world: (L, 3) estimated landmark positions [m].
         causal_world_T_cam: (N, 4, 4) iSAM2's estimate of each frame right
             after it was added (the filter result), or None for batch.
+        causal_sigma_xyz: (N, 3) that estimate's marginal position sigmas,
+            world axes [m] (the filter's, from the same update), or None
+            (batch, or sigmas not computed).
         seconds: solve time [s] (graph building and optimisation).
         build_seconds: of which building the graph [s] (batch; 0 for iSAM2).
         sigma_seconds: time spent on marginals [s].
@@ -434,6 +437,7 @@ class SmootherResult:
     signs_used: np.ndarray
     landmarks_world: np.ndarray
     causal_world_T_cam: np.ndarray | None = None
+    causal_sigma_xyz: np.ndarray | None = None
     seconds: float = 0.0
     build_seconds: float = 0.0
     sigma_seconds: float = 0.0
@@ -1231,6 +1235,7 @@ class _Isam2Run:
         self.b = b
         self.s = s
         self.want_sigmas = False
+        self.causal_cov6: list[np.ndarray] = []  # the newest pose's marginal after each update
         self.isam = gtsam.ISAM2(_isam2_params(s))
         self.n_lm = len(b.m.landmark_code)
         self.cv = s.motion == CONSTANT_VELOCITY
@@ -1361,6 +1366,8 @@ class _Isam2Run:
         else:
             self.last_update = self.isam.update(graph, values)
         self.prev_pose = self.isam.calculateEstimatePose3(X(i))
+        if self.want_sigmas:  # the filter's covariance: the newest pose sits at the root
+            self.causal_cov6.append(np.asarray(self.isam.marginalCovariance(X(i))))
         if self.cv:
             self.prev_vel = np.asarray(self.isam.calculateEstimateVector(V(i))).reshape(3)
         window = int(self.s.isam_window_frames)
@@ -1620,6 +1627,9 @@ def smooth_isam2(
         signs_used=signs,
         landmarks_world=landmarks,
         causal_world_T_cam=causal,
+        causal_sigma_xyz=_sigmas_from(np.array(run.causal_cov6), causal)
+        if run.causal_cov6
+        else None,
         seconds=seconds,
         sigma_seconds=sigma_seconds,
         per_frame_ms=per_ms,
