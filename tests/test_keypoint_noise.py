@@ -257,3 +257,23 @@ def test_a_line_beside_a_part_grows_its_sigma_to_cover_its_error():
         # The other keypoints do not shrink.
         for n, s in crossed.keypoint_sigma_px.items():
             assert s[0] >= 0.95 * clean.keypoint_sigma_px[n][0], n
+
+
+def test_a_large_clean_signs_sigmas_grow_with_its_size():
+    """Clean errors grow again on large signs (``KindNoise.scale``): a sign
+    four times larger than ``CLEAN`` (240 px) gets larger centre and slot
+    sigmas, where the size term alone (1 / minor) would shrink them (the
+    directional keypoint's floor is held, calibrate_sigma.LEAST_OF_KIND,
+    and its fitted scale is ~0)."""
+    small, large = _sig(CLEAN), _sig(replace(CLEAN, minor_px=240.0))
+    for n in ("center", "slot1"):
+        assert large[n][0] > 1.5 * small[n][0], n
+    assert large["direction"][0] > 0.8 * small["direction"][0]
+
+
+def test_a_reading_through_the_closed_crop_gives_every_keypoint_a_tenth_of_a_pixel():
+    """Its measures never saw the line: every kind, the directional keypoint
+    too (its fitted ``closed_px`` went to 2e-9, a clean sign's 0.05 px),
+    keeps at least calibrate_sigma's least ``closed_px`` of 0.1 px."""
+    closed = _sig(replace(CLEAN, crossed=True, closed=True))
+    assert all(min(s) >= 0.1 for s in closed.values()), closed
