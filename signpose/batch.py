@@ -33,6 +33,7 @@ from tqdm import tqdm
 
 from signpose.core.errors import InputError, SignposeError, one_line
 from signpose.core.fileio import atomic_write, ensure_dir
+from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.status import PoseStatus
 from signpose.fingerprint import (
     FINGERPRINT_KEY,
@@ -97,8 +98,10 @@ class FlightJob:
             depend on it.
         telemetry: the drone's telemetry file beside each input, as a name in
             which ``{stem}`` is the input's name without its suffix (DJI:
-            ``{stem}.SRT``), or "" (none: vision only).
+            ``{stem}.SRT``), or "" (none: vision only); a flight without it fails.
         telemetry_offset_s: telemetry time minus video time [s]; None: estimated.
+        focal_sigma_rel: the calibration's focal length sigma as a fraction,
+            added to the pose sigmas (``EstimatorSettings.focal_sigma_rel``).
     """
 
     flight: str
@@ -116,6 +119,7 @@ class FlightJob:
     workers: int = 0
     telemetry: str = ""
     telemetry_offset_s: float | None = None
+    focal_sigma_rel: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -294,6 +298,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             fps=job.fps or None,
             settings=RunSettings(
                 observe=ObserveSettings(cascade_path=job.cascade_path, workers=job.workers),
+                estimator=EstimatorSettings(focal_sigma_rel=job.focal_sigma_rel),
                 with_images=job.with_images,
                 plots=job.plots,
                 telemetry=telemetry,
@@ -457,7 +462,9 @@ def _fingerprint(job: FlightJob) -> str:
         job.gt_path or _beside(inp, "groundtruth.tum") or None,
         {k: getattr(job, k) for k in _RESULT_FIELDS}
         | {"cascade": content_digest(job.cascade_path)}
-        | _telemetry_key(job),
+        | _telemetry_key(job)
+        # only when set: the runs of before it match
+        | ({"focal_sigma_rel": job.focal_sigma_rel} if job.focal_sigma_rel else {}),
     )
 
 
@@ -614,6 +621,7 @@ def run_batch(
     cascade_path: str | os.PathLike | None = None,
     telemetry: str | None = None,
     telemetry_offset_s: float | None = None,
+    focal_sigma_rel: float = 0.0,
 ) -> list[FlightOutcome]:
     """Run every flight not finished yet (or changed since) and write ``summary.csv``.
 
@@ -633,7 +641,7 @@ def run_batch(
             ``flight_names``), so that names do not depend on which flights
             are passed together.
         cascade_path: detector cascade XML for every flight; None: the bundled one.
-        telemetry, telemetry_offset_s: as ``FlightJob``'s (a flight without its file fails).
+        telemetry, telemetry_offset_s, focal_sigma_rel: as ``FlightJob``'s.
 
     Returns:
         One outcome per input, in input order.
@@ -641,8 +649,7 @@ def run_batch(
     if not inputs:
         raise InputError("no flights given")
     cascade = _check_shared(map_path, cascade_path, telemetry)
-    out = ensure_dir(out_dir)
-    names = flight_names(inputs, root)
+    out, names = ensure_dir(out_dir), flight_names(inputs, root)
     options = FlightJob(
         flight="",
         input_path="",
@@ -656,8 +663,8 @@ def run_batch(
         cascade_path=cascade,
         telemetry=telemetry or "",
         telemetry_offset_s=telemetry_offset_s,
-        # Flights in parallel (a pool or a cluster): each observes in its own process only.
-        workers=1 if (jobs > 1 or scheduler) else 0,
+        focal_sigma_rel=focal_sigma_rel,
+        workers=1 if (jobs > 1 or scheduler) else 0,  # flights in parallel: 1 process each
     )
     outcomes, todo = _jobs(inputs, names, map_path, out, options, force)
     bar = _flights_bar(len(inputs), len(outcomes), progress)

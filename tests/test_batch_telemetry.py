@@ -56,3 +56,25 @@ def test_batch_fuses_each_flight(tmp_path):
     header, row = summary[0].split(","), summary[1].split(",")
     assert float(row[header.index("coverage_fused")]) > 0.9
     assert (out / "video" / "trajectory_wgs84.csv").exists()
+
+
+def test_the_focal_sigma_reaches_each_flight_and_its_fingerprint(tmp_path):
+    job = batch.FlightJob("v", str(tmp_path / "v.mp4"), str(bundled_map_path()), str(tmp_path))
+    plain = batch._fingerprint(job)
+    assert batch._fingerprint(batch.replace(job, focal_sigma_rel=0.0)) == plain
+    assert batch._fingerprint(batch.replace(job, focal_sigma_rel=0.01)) != plain
+    seen = []
+
+    def runner(j):
+        seen.append(j.focal_sigma_rel)
+        return batch.FlightOutcome(j.flight, batch.FlightStatus.OK)
+
+    (tmp_path / "v.mp4").write_bytes(b"\x00")
+    out = tmp_path / "out"
+    batch.run_batch(
+        [tmp_path / "v.mp4"], bundled_map_path(), out, progress=False, runner=runner,
+        focal_sigma_rel=0.02,
+    )  # fmt: skip
+    assert seen == [0.02]
+    args = ["batch", str(tmp_path / "v.mp4"), "--map", str(bundled_map_path()), "--out", str(out)]
+    assert main([*args, "--focal-sigma", "-1", "-q"]) == 2

@@ -15,6 +15,7 @@ from signpose.cli import (
     add_quiet,
     out_folder_arg,
 )
+from signpose.cli.run import add_focal_sigma, focal_sigma
 from signpose.core.errors import InputError
 
 
@@ -65,6 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="telemetry time minus video time [s] for every flight (default: estimated)",
     )
+    add_focal_sigma(p)
     add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
@@ -90,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         cascade_path=args.cascade,
         telemetry=args.telemetry,
         telemetry_offset_s=args.telemetry_offset,
+        focal_sigma_rel=focal_sigma(args),
     )
     failed = [o for o in outcomes if o.status is FlightStatus.FAILED]
     skipped = sum(o.skipped for o in outcomes)
