@@ -134,6 +134,32 @@ scenes, 1,000 per condition, scripts/eval_decoder.py --independent-only
   Unused evidence: in 9 of the 22 left over the three seeds the member
   also covers 10-31 % of a white part next to the covered slot (a straight
   dark edge across a corner of it).
+
+A member's edge across a white part's corner (``cut_corners``, reached
+through ``off_black_bands``; the session after): a member as dark as the
+background beyond the rim often takes a corner off the white part next to
+the slot it hides. A corner whose probe 1 px inside both sides is dark while
+the part's three other corners are white, a straight line across it that
+leaves the part dark beyond and white before it, a black-read slot wholly
+beyond that line within 0.4 diameters with no white sample between, and a
+bar dark beyond the rim at both ends 0.07-0.1 diameters into it: the slot is
+erased. Independent scenes, 1,000 per condition, scripts/eval_decoder.py
+--independent-only --independent 1000, seeds 2017 / 99 / 7, against the same
+tree with ``cut_corners`` off: wrong codes 5 -> 5 / 7 -> 5 / 10 -> 8 ("one
+slot covered" 4 -> 4 / 6 -> 5 / 8 -> 6, member in front 1 -> 1 / 1 -> 0 /
+1 -> 1), the unoccluded conditions' decodes 0.0-0.2 points lower (faded,
+mixed), "1 slot, unique in map" unchanged, conductor in front 0.3-0.7
+points lower (a conductor across a corner with dark background beyond the
+rim at both ends).
+
+* Tried and dropped: the corner's level from the grid's corner cells,
+  absolute (at most 0.3 white, 0.25 below the corners next to it: on 18-35
+  px signs every corner is that dark, blur burst -1.2 and gain -0.8 points);
+  no test beyond the rim (11 conductor crossings refused on seed 2017);
+  instead of it the print's level across the bar (conductors as black as
+  the print pass: 9); probes 1.5 px in (wrong codes 5 / 7 / 7).
+* Left: cuts shallower than a pixel (seed 2017's crop 708 of "one slot
+  covered", 0.56 white 1 px in) and crops whose member cuts no white part.
 """
 
 from __future__ import annotations
@@ -717,6 +743,7 @@ def off_black_bands(
     runs over one of ``targets`` ((T, 2) centres of black-read slots
     [diameters]). This needs no dark background beyond the rim: a bar
     lighter than the print in front of a dark photograph shows only here.
+    ``cut_corners``' bands over the targets that are coded slots come too.
     """
     if len(targets) == 0:
         return []
@@ -774,7 +801,7 @@ def off_black_bands(
             band = _off_black_extent(gray, image_H_sign, band, black, contrast, sign * thr)
             if band is not None and (band.distance(targets) < band.half_width).any():
                 out.append(band)
-    return out
+    return out + _corner_bands(gray, image_H_sign, black, white, targets)
 
 
 # Lines parallel to a band's chord, this far apart [diameters], sampled for
@@ -1002,3 +1029,252 @@ def straight_bars(
             continue
         out.append(Band(p0[i], p1[i], float(hw[i]), in_front=False))
     return out
+
+
+# The cut-corner test (``cut_corners``): a white part's inside on a grid of
+# cell centres (``_CUT_GRID`` a side), and a probe ``_CUT_PROBE_PX`` inside
+# both sides at each corner (within ``_CUT_PROBE_RANGE`` of their lengths).
+# A corner is cut when its probe is at most ``_CUT_DARK`` white, at least
+# ``_CUT_STEP`` darker than both corners next to it, and the three other
+# corners are at least ``_CUT_LIT`` white: blur rounds all four corners
+# alike at that depth, a homography that misses by a pixel darkens two next
+# to each other, a motion blur two opposite ones.
+_CUT_GRID = 10
+_CUT_DARK = 0.35
+_CUT_STEP = 0.3
+_CUT_LIT = 0.5
+_CUT_PROBE_PX = 1.0
+_CUT_PROBE_RANGE = (0.08, 0.35)
+# A cut line meets the part's two sides next to the corner at these
+# fractions of their lengths.
+_CUT_FRACS = np.linspace(0.2, 1.0, 17)
+# Samples at least this white lie beside the bar, and cut-off samples at
+# most this white lie under it; samples within ``_CUT_EDGE`` [diameters]
+# and ``_CUT_EDGE_PX`` [px] of a cut line are its blurred edge.
+_CUT_WHITE = 0.55
+_CUT_UNDER = 0.45
+_CUT_EDGE = 0.01
+_CUT_EDGE_PX = 0.7
+# Widest bar [diameters] taken from its edge across to the far side of the
+# slot it would hide (pylon members are up to about a third of a sign).
+_CUT_MAX_WIDTH = 0.4
+
+
+def _cut_geometry() -> tuple[np.ndarray, np.ndarray]:
+    """The cut-test grid's bilinear weights (G, 4) and the (a, b) cut
+    fractions of every line tried (L, 2)."""
+    c = (np.arange(_CUT_GRID) + 0.5) / _CUT_GRID
+    u, v = np.meshgrid(c, c)
+    u, v = u.ravel(), v.ravel()
+    weights = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], axis=1)
+    fa, fb = np.meshgrid(_CUT_FRACS, _CUT_FRACS, indexing="ij")
+    return weights, np.stack([fa.ravel(), fb.ravel()], axis=1)
+
+
+_CUT_WEIGHTS, _CUT_LINES = _cut_geometry()
+# A quad's corners after, before and opposite each corner.
+_NEXT, _PREV, _OPPOSITE = [1, 2, 3, 0], [3, 0, 1, 2], [2, 3, 0, 1]
+
+
+def cut_corners(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    black: float,
+    white: float,
+    targets: np.ndarray,
+    white_quads: np.ndarray,
+) -> list[Band]:
+    """Bars whose straight edge cuts a corner off a white part and runs on past
+    a black-read slot (``targets``, (T, 2) centres [diameters]) that it hides.
+
+    A member as dark as the background beyond the rim may show at neither
+    rim crossing; where it covers a white slot it often takes a corner off
+    the white part next to it too. Each white part of ``white_quads`` ((P, 4,
+    2) [diameters], corners in order) is sampled on a grid; a corner much
+    darker than the others is cut (see ``_CUT_DARK``). Lines across it
+    (meeting the two sides at ``_CUT_FRACS``) are the bar's edge when the
+    part's samples beyond them are dark and those before them white; the
+    bar lies on the corner's side. It is returned as a band over a target
+    when the whole slot lies on that side within ``_CUT_MAX_WIDTH`` of the
+    line, no white sample of any part lies between the line and the slot's
+    far side, and the bar stays dark beyond the rim at both ends
+    (``_dark_beyond_rim``: a thin conductor over a corner does not). The
+    bands are not ``in_front`` (they erase the black slots they cross,
+    nothing else).
+    """
+    if len(targets) == 0 or len(white_quads) == 0:
+        return []
+    contrast = max(white - black, 1e-6)
+    px = 1.0 / max(_px_per_diameter(image_H_sign), 1e-6)  # one pixel [diameters]
+    # Each corner's probe, ``_CUT_PROBE_PX`` inside both of its sides (e1
+    # toward the next corner, e2 toward the one before): blur rounds every
+    # corner alike there, a cut one is dark.
+    # (np.roll is ten times slower than these index lists on 4 corners.)
+    q = np.asarray(white_quads, float)
+    e1, e2 = q[:, _NEXT] - q, q[:, _PREV] - q  # (P, 4, 2)
+    lo, hi = _CUT_PROBE_RANGE
+    f1 = np.minimum(np.maximum(_CUT_PROBE_PX * px / np.hypot(e1[..., 0], e1[..., 1]), lo), hi)
+    f2 = np.minimum(np.maximum(_CUT_PROBE_PX * px / np.hypot(e2[..., 0], e2[..., 1]), lo), hi)
+    probes = q + f1[..., None] * e1 + f2[..., None] * e2
+    level = (_sample(gray, _project(image_H_sign, probes.reshape(-1, 2))) - black) / contrast
+    level = level.reshape(len(q), 4)
+    # The other three corners: the darkest of them, and the two next to it.
+    others = np.minimum(level[:, _NEXT], level[:, _PREV])
+    brighter = np.minimum(others, level[:, _OPPOSITE])
+    cut = (level <= _CUT_DARK) & (others - level >= _CUT_STEP) & (brighter >= _CUT_LIT)
+    if not cut.any():
+        return []  # most readings: every part's corners alike
+    pts = np.einsum("gk,pkj->pgj", _CUT_WEIGHTS, white_quads)  # (P, G, 2)
+    frac = (_sample(gray, _project(image_H_sign, pts.reshape(-1, 2))) - black) / contrast
+    frac = frac.reshape(len(white_quads), -1)
+    # Blurred edges: samples within a pixel of a cut line count neither way.
+    margin = max(_CUT_EDGE, _CUT_EDGE_PX * px)
+    lit_pts = pts.reshape(-1, 2)[frac.ravel() >= _CUT_WHITE]
+    slot_quads = _slot_quads_at(targets)
+    out: list[Band] = []
+    for p, k in zip(*np.nonzero(cut), strict=True):
+        f, corner = frac[p], q[p, k]
+        # The cut line through corner + a e1 and corner + b e2; its unit
+        # normal toward the corner.
+        a_pt = corner[None] + _CUT_LINES[:, :1] * e1[p, k][None]
+        d = corner[None] + _CUT_LINES[:, 1:] * e2[p, k][None] - a_pt
+        n = np.stack([d[:, 1], -d[:, 0]], axis=1) / np.hypot(d[:, 0], d[:, 1])[:, None]
+        n *= np.sign(np.einsum("ij,ij->i", corner[None] - a_pt, n))[:, None]
+        s = np.einsum("lj,gj->lg", n, pts[p]) - np.einsum("lj,lj->l", n, a_pt)[:, None]
+        ok = ~((s > margin) & (f[None] > _CUT_UNDER)).any(axis=1)
+        # Before the line the part is white but for its own blurred outline
+        # (the outer ring of cells).
+        ok &= ~((s < -margin) & _CUT_INNER[None] & (f[None] < _CUT_WHITE)).any(axis=1)
+        for li in np.flatnonzero(ok).tolist():
+            band = _bar_from_cut(a_pt[li], n[li], slot_quads, lit_pts, margin)
+            if band is not None and _dark_beyond_rim(
+                gray, image_H_sign, black, contrast, a_pt[li], n[li]
+            ):
+                out.append(band)
+                break
+    return out
+
+
+def _inner_cells() -> np.ndarray:
+    """(G,) the cut-test grid's cells off its outer ring."""
+    r = np.arange(_CUT_GRID)
+    inner = (r > 0) & (r < _CUT_GRID - 1)
+    return (inner[:, None] & inner[None, :]).ravel()
+
+
+_CUT_INNER = _inner_cells()
+
+
+def _corner_bands(
+    gray: np.ndarray, image_H_sign: np.ndarray, black: float, white: float, targets: np.ndarray
+) -> list[Band]:
+    """``cut_corners`` over the coded slots among ``targets`` ((T, 2)
+    [diameters]), the white parts being the location and directional
+    rectangles and the other coded slots: a bar as dark as the print and the
+    background that shows only where it takes a corner off a white part."""
+    slots, beside = _coded_slots_at(targets)
+    if len(slots) == 0:
+        return []
+    return cut_corners(gray, image_H_sign, black, white, slots, beside)
+
+
+def _px_per_diameter(image_H_sign: np.ndarray) -> float:
+    """Pixels per diameter at the sign's centre: sqrt |det| of the homography's
+    Jacobian there."""
+    (a, b, c), (d, e, f), (g, k, w) = np.asarray(image_H_sign, float).tolist()
+    ja, jb, jc, jd = (a * w - c * g), (b * w - c * k), (d * w - f * g), (e * w - f * k)
+    return math.sqrt(abs(ja * jd - jb * jc)) / (w * w)
+
+
+_SLOT_CENTRES = PART_QUADS[2:].mean(axis=1)
+
+
+def _coded_slots_at(targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (S, 2) points of ``targets`` ((T, 2) [diameters]) that are coded
+    slots' centres (the decoder also passes its black reference samples),
+    and ``_quads_beside`` them (cached: the decoder's sets are few)."""
+    return _coded_slots_of(tuple(map(tuple, np.asarray(targets, float).reshape(-1, 2).tolist())))
+
+
+@functools.lru_cache(maxsize=64)
+def _coded_slots_of(targets: tuple[tuple[float, float], ...]) -> tuple[np.ndarray, np.ndarray]:
+    t = np.asarray(targets, float).reshape(-1, 2)
+    gap = np.hypot(*(t[:, None] - _SLOT_CENTRES[None]).transpose(2, 0, 1)).min(axis=1)
+    slots = t[gap < 1e-6]
+    return slots, (_quads_beside(slots) if len(slots) else PART_QUADS[:0])
+
+
+def _quads_beside(targets: np.ndarray) -> np.ndarray:
+    """(P, 4, 2) the parts a reading with black-read slots at ``targets`` sees
+    white: the location and directional rectangles and every other coded slot."""
+    centres = PART_QUADS.mean(axis=1)
+    t = np.asarray(targets, float).reshape(-1, 2)
+    far = np.hypot(*(centres[:, None] - t[None]).transpose(2, 0, 1)).min(axis=1) > 1e-6
+    return PART_QUADS[far]
+
+
+def _slot_quads_at(targets: np.ndarray) -> np.ndarray:
+    """(T, 4, 2) the coded slots' rectangles whose centres are ``targets``."""
+    centres = PART_QUADS.mean(axis=1)
+    idx = [int(np.argmin(np.hypot(*(centres - t).T))) for t in np.asarray(targets, float)]
+    return PART_QUADS[idx]
+
+
+def _bar_from_cut(
+    edge_pt: np.ndarray,
+    n: np.ndarray,
+    slot_quads: np.ndarray,
+    lit_pts: np.ndarray,
+    margin: float,
+) -> Band | None:
+    """The band from a bar's edge line (through ``edge_pt``, unit normal ``n``
+    toward the bar [diameters]) across to the far side of a slot it hides
+    whole, or None."""
+    s = (slot_quads - edge_pt) @ n  # (T, 4)
+    hidden = (s.min(axis=1) > -margin) & (s.max(axis=1) <= _CUT_MAX_WIDTH)
+    if not hidden.any():
+        return None
+    width = float(s.max(axis=1)[hidden].max()) + margin
+    if len(lit_pts):
+        sl = (lit_pts - edge_pt) @ n
+        if ((sl > margin) & (sl < width)).any():
+            return None
+    d = np.array([-n[1], n[0]])
+    c = edge_pt + 0.5 * width * n
+    # Rim crossings of the centre line: |c + t d| = 0.5.
+    b = float(c @ d)
+    root = math.sqrt(max(b * b - (float(c @ c) - 0.25), 0.0))
+    return Band(c - (b + root) * d, c + (root - b) * d, 0.5 * width, in_front=False)
+
+
+# Beyond the rim the bar runs on: lines parallel to its edge, this far into
+# it [diameters] (a bar that hides a slot is at least 0.16 wide; a conductor
+# at most 0.06), are dark at these distances beyond both rim crossings,
+# wherever the crop shows them. A thin conductor shows the background there.
+_CUT_BODY = (0.07, 0.1)
+_CUT_BEYOND = (0.04, 0.08, 0.12)
+
+
+def _dark_beyond_rim(
+    gray: np.ndarray,
+    image_H_sign: np.ndarray,
+    black: float,
+    contrast: float,
+    edge_pt: np.ndarray,
+    n: np.ndarray,
+) -> bool:
+    """Whether the bar whose edge runs through ``edge_pt`` (unit normal ``n``
+    toward the bar [diameters]) stays dark beyond the rim at both ends."""
+    d = np.array([-n[1], n[0]])
+    pts = []
+    for o in _CUT_BODY:
+        c = edge_pt + o * n
+        b = float(c @ d)
+        root = math.sqrt(max(b * b - (float(c @ c) - 0.25), 0.0))
+        for t in _CUT_BEYOND:
+            pts += [c - (b + root + t) * d, c + (root - b + t) * d]
+    uv = _project(image_H_sign, np.asarray(pts))
+    h, w = gray.shape
+    seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
+    frac = (_sample(gray, uv) - black) / contrast
+    return not (seen & (frac > _DARK_FRAC)).any()
