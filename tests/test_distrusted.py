@@ -7,6 +7,7 @@ import pytest
 from conftest import estimator_scene
 from signpose.estimator.estimate import (
     MAX_PIXEL_NOISE_SCALE,
+    WEAK_PIXEL_NOISE_SCALE,
     EstimatorSettings,
     distrusted,
     estimate_trajectories,
@@ -60,8 +61,15 @@ def test_a_lens_left_out_of_the_camera_file_is_told_and_no_pose_is_ok(runs):
 
 def test_below_the_limit_nothing_changes(runs):
     honest, _ = runs
-    same, warnings = distrusted(honest.methods, MAX_PIXEL_NOISE_SCALE)
+    same, warnings = distrusted(honest.methods, WEAK_PIXEL_NOISE_SCALE)
     assert warnings == () and same is honest.methods
+    # between the two limits: sigmas scaled, but no pose left ok, and told why
+    for scale in (1.01 * WEAK_PIXEL_NOISE_SCALE, MAX_PIXEL_NOISE_SCALE):
+        out, warnings = distrusted(honest.methods, scale)
+        assert len(warnings) == 1 and "sigma_m" in warnings[0] and "no pose" in warnings[0]
+        for name, m in out.items():
+            for a, b in zip(honest.methods[name].status, m.status, strict=True):
+                assert b is (PoseStatus.WEAK if a is PoseStatus.OK else a)
     out, warnings = distrusted(honest.methods, 1.01 * MAX_PIXEL_NOISE_SCALE)
     assert len(warnings) == 1
     for name, m in out.items():
