@@ -951,13 +951,7 @@ def distrusted(
     than reported as one to bet on.
     """
     if scale > WEAK_PIXEL_NOISE_SCALE and not scale > MAX_PIXEL_NOISE_SCALE:
-        weak = {
-            name: replace(
-                m, status=tuple(PoseStatus.WEAK if st is PoseStatus.OK else st for st in m.status)
-            )
-            for name, m in methods.items()
-        }
-        return weak, (
+        return _relabelled(methods, (PoseStatus.OK,), PoseStatus.WEAK), (
             f"the keypoints miss their predicted places by {scale:.1f}x their sigmas "
             f"(pixel_noise_scale; correct set-ups stay below {WEAK_PIXEL_NOISE_SCALE:g}): the "
             "sigmas were scaled by it, but an error that every frame shares (the map's sigma_m "
@@ -967,18 +961,22 @@ def distrusted(
     if not scale > MAX_PIXEL_NOISE_SCALE:
         return methods, ()
     trusted = (PoseStatus.OK, PoseStatus.WEAK)
-    out = {
-        name: replace(
-            m, status=tuple(PoseStatus.SUSPECT if st in trusted else st for st in m.status)
-        )
-        for name, m in methods.items()
-    }
-    return out, (
+    return _relabelled(methods, trusted, PoseStatus.SUSPECT), (
         f"the keypoints miss their predicted places by {scale:.1f}x their sigmas "
         f"(pixel_noise_scale, at most {MAX_PIXEL_NOISE_SCALE:g} is noise): the camera file "
         "(focal length, lens distortion, image size) or the map (sign positions, 'up' and "
         "'normal') does not fit this video; every pose is marked suspect",
     )
+
+
+def _relabelled(
+    methods: dict[str, MethodEstimate], states: tuple[PoseStatus, ...], to: PoseStatus
+) -> dict[str, MethodEstimate]:
+    """``methods`` with every pose status in ``states`` replaced by ``to``."""
+    return {
+        name: replace(m, status=tuple(to if st in states else st for st in m.status))
+        for name, m in methods.items()
+    }
 
 
 def _checked(

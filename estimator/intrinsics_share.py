@@ -29,7 +29,7 @@ from signpose.frontend.observations import FrameObservations
 from signpose.maps.loader import SignMap
 
 # estimate.MethodEstimate (estimate imports this module): sigma_xyz, world_T_cam, status.
-MethodEstimate = TypeVar("MethodEstimate")
+Method = TypeVar("Method")
 
 
 def scene_to_camera_m(
@@ -46,12 +46,12 @@ def scene_to_camera_m(
 
 
 def with_focal_share(
-    method: MethodEstimate,
+    method: Method,
     frames: Sequence[FrameObservations],
     sign_map: SignMap,
     focal_sigma_rel: float,
     weak_sigma_m: float,
-) -> MethodEstimate:
+) -> Method:
     """``method`` with the focal length's share added to its position sigmas.
 
     Args:

@@ -164,3 +164,11 @@ def disc_ellipse(image_H_sign: np.ndarray, diameter: float) -> Ellipse:
     _, hinv = cv2.invert(np.asarray(image_H_sign, dtype=np.float64))
     # The rim x^2 + y^2 = r^2 as a conic, carried to the image.
     return ellipse_from_conic(hinv.T @ (np.array([[1.0], [1.0], [-r * r]]) * hinv))
+
+
+def px_per_diameter(image_H_sign: np.ndarray) -> float:
+    """Pixels per sign unit at the sign's centre: sqrt |det| of the homography's
+    Jacobian at the sign frame's origin."""
+    (a, b, c), (d, e, f), (g, k, w) = np.asarray(image_H_sign, float).tolist()
+    ja, jb, jc, jd = (a * w - c * g), (b * w - c * k), (d * w - f * g), (e * w - f * k)
+    return math.sqrt(abs(ja * jd - jb * jc)) / (w * w)

@@ -82,7 +82,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from signpose.frontend.homography import polygon_centroids
+from signpose.frontend.homography import polygon_centroids, px_per_diameter
 
 # The names of the variance terms, in the order of ``variance_terms``' columns
 # and of ``KindNoise``'s fields.
@@ -432,13 +432,6 @@ def _noise(ring_gray: np.ndarray, contrast: float) -> float:
     return float(1.4826 * mid / math.sqrt(6.0) / max(contrast, 1e-6))
 
 
-def _scale_px(h: np.ndarray) -> float:
-    """px per diameter at the sign's centre (sqrt |det| of the homography's Jacobian there)."""
-    (a, b, c), (d, e, f), (g, i, w) = h.tolist()
-    det = ((a * w - c * g) * (e * w - f * i) - (b * w - c * i) * (d * w - f * g)) / w**4
-    return math.sqrt(abs(det))
-
-
 @functools.cache
 def _geometry(quads_key: tuple[float, ...], thin_key: tuple[bool, ...]) -> tuple:
     """The sign-plane sample points of ``measure_parts`` for one part list:
@@ -585,7 +578,7 @@ def measure_parts(
     inside_xy, base, normals, corners, growth, masks = _geometry(
         tuple(quads.ravel().tolist()), tuple(thin.tolist())
     )
-    scale = _scale_px(h)
+    scale = px_per_diameter(h)
     stray_grow = min(_STRAY_PX / max(scale, 1e-9), _STRAY_MAX)
     window_grow = min(_WINDOW_PX / max(scale, 1e-9), _WINDOW_MAX)
     band_grow = min(_BAND_PX / max(scale, 1e-9), _STRAY_MAX)

@@ -170,6 +170,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from signpose.frontend.homography import px_per_diameter
 from signpose.frontend.sign import sign_shape
 
 # Rings sampled just outside the rim [diameters]; both must be dark.
@@ -1105,7 +1106,7 @@ def cut_corners(
     if len(targets) == 0 or len(white_quads) == 0:
         return []
     contrast = max(white - black, 1e-6)
-    px = 1.0 / max(_px_per_diameter(image_H_sign), 1e-6)  # one pixel [diameters]
+    px = 1.0 / max(px_per_diameter(image_H_sign), 1e-6)  # one pixel [diameters]
     # Each corner's probe, ``_CUT_PROBE_PX`` inside both of its sides (e1
     # toward the next corner, e2 toward the one before): blur rounds every
     # corner alike there, a cut one is dark.
@@ -1176,14 +1177,6 @@ def _corner_bands(
     if len(slots) == 0:
         return []
     return cut_corners(gray, image_H_sign, black, white, slots, beside)
-
-
-def _px_per_diameter(image_H_sign: np.ndarray) -> float:
-    """Pixels per diameter at the sign's centre: sqrt |det| of the homography's
-    Jacobian there."""
-    (a, b, c), (d, e, f), (g, k, w) = np.asarray(image_H_sign, float).tolist()
-    ja, jb, jc, jd = (a * w - c * g), (b * w - c * k), (d * w - f * g), (e * w - f * k)
-    return math.sqrt(abs(ja * jd - jb * jc)) / (w * w)
 
 
 _SLOT_CENTRES = PART_QUADS[2:].mean(axis=1)

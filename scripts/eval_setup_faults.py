@@ -447,10 +447,16 @@ def _bad(row: dict, reference: dict | None) -> list[str]:
             continue
         if r["ok"] and r["ok_beyond_3sigma"] / r["ok"] > MAX_OK_BEYOND_3SIGMA:
             why.append(f"{m} {r['ok_beyond_3sigma']} of {r['ok']} ok beyond 3 sigma")
-        ref = (reference or {}).get("methods", {}).get(m, {}).get("rmse_m")
-        if r["ok"] and ref and r["rmse_m"] is not None and r["rmse_m"] > MAX_RMSE_RATIO * ref:
-            why.append(f"{m} RMSE {r['rmse_m'] / ref:.1f}x the correct set-up's")
+        ratio = _rmse_ratio(r, reference, m)
+        if r["ok"] and ratio > MAX_RMSE_RATIO:
+            why.append(f"{m} RMSE {ratio:.1f}x the correct set-up's")
     return why
+
+
+def _rmse_ratio(r: dict, reference: dict | None, method: str) -> float:
+    """``r``'s RMSE over the correct set-up's for ``method`` (0 when either is unknown)."""
+    ref = (reference or {}).get("methods", {}).get(method, {}).get("rmse_m")
+    return r["rmse_m"] / ref if ref and r["rmse_m"] is not None else 0.0
 
 
 def verdict(row: dict, reference: dict | None) -> str:
@@ -467,13 +473,8 @@ def verdict(row: dict, reference: dict | None) -> str:
 
 def _far_but_not_ok(row: dict, reference: dict | None) -> bool:
     """A method far off (RMSE > ``MAX_RMSE_RATIO`` x the reference's) with no ``ok`` pose."""
-    for m in METHODS:
-        r = row.get("methods", {}).get(m)
-        ref = (reference or {}).get("methods", {}).get(m, {}).get("rmse_m")
-        far = r and ref and r["rmse_m"] is not None and r["rmse_m"] > MAX_RMSE_RATIO * ref
-        if far and not r["ok"]:
-            return True
-    return False
+    rows = ((m, row.get("methods", {}).get(m)) for m in METHODS)
+    return any(r and not r["ok"] and _rmse_ratio(r, reference, m) > MAX_RMSE_RATIO for m, r in rows)
 
 
 # --------------------------------------------------------------------------- flights
