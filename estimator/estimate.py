@@ -32,7 +32,7 @@ from signpose.estimator.fusion import (
     on_smoother,
     pose_statuses,
 )
-from signpose.estimator.intrinsics_share import with_focal_share
+from signpose.estimator.intrinsics_share import with_intrinsics_shares
 from signpose.estimator.noise_scale import (
     exact_map_pose,
     inflated_pose,
@@ -141,6 +141,9 @@ class EstimatorSettings:
             fraction of it (0.01: 1 %), added to the position sigmas of every
             method that has them (``estimator.intrinsics_share``: the video
             cannot show a focal length error; 0: the calibration is exact).
+        principal_sigma_px: the calibration's principal point sigma on each
+            image axis [px], added the same way (``intrinsics_share``); 0: exact,
+            and left out of ``to_dict`` (report.json as before the option).
     """
 
     methods: tuple[str, ...] = METHODS
@@ -156,9 +159,13 @@ class EstimatorSettings:
     final_kernel: str = TUKEY
     scale_pixel_noise: bool = True
     focal_sigma_rel: float = 0.0
+    principal_sigma_px: float = 0.0
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        if not self.principal_sigma_px:
+            del d["principal_sigma_px"]
+        return d
 
 
 @dataclass(frozen=True)
@@ -988,7 +995,8 @@ def _checked(
     s: EstimatorSettings,
 ) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
     """The signs' orientations checked (``check_orientations``), then ``distrusted``,
-    then the focal length's stated share added to the sigmas (``intrinsics_share``).
+    then the focal length's and the principal point's stated shares added to the
+    sigmas (``intrinsics_share``).
 
     With keypoints that miss by more than noise (``scale`` above
     ``MAX_PIXEL_NOISE_SCALE``) a sign whose centre misses too is not blamed
@@ -1003,7 +1011,9 @@ def _checked(
     methods, warnings = distrusted(methods, scale)
     weak = s.status.weak_sigma_m
     return {
-        k: with_focal_share(m, frames, sign_map, s.focal_sigma_rel, weak)
+        k: with_intrinsics_shares(
+            m, frames, sign_map, camera, s.focal_sigma_rel, s.principal_sigma_px, weak
+        )
         for k, m in methods.items()
     }, warnings
 

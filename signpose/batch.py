@@ -34,6 +34,7 @@ from tqdm import tqdm
 from signpose.core.errors import InputError, SignposeError, one_line
 from signpose.core.fileio import atomic_write, ensure_dir
 from signpose.estimator.estimate import EstimatorSettings
+from signpose.estimator.smoother import FIXED, SmootherSettings
 from signpose.estimator.status import PoseStatus
 from signpose.fingerprint import (
     FINGERPRINT_KEY,
@@ -102,6 +103,13 @@ class FlightJob:
         telemetry_offset_s: telemetry time minus video time [s]; None: estimated.
         focal_sigma_rel: the calibration's focal length sigma as a fraction,
             added to the pose sigmas (``EstimatorSettings.focal_sigma_rel``).
+        solver: the smoother's solver, "batch" or "isam2" (``signpose run --solver``).
+        map_fixed: the survey taken as exact (``--map-fixed``).
+        sigmas: compute the smoother's marginal sigmas (False: ``--no-sigmas``).
+        principal_sigma_px: the calibration's principal point sigma [px], added
+            to the pose sigmas (``EstimatorSettings.principal_sigma_px``).
+        The estimator's fields are in the fingerprint only when not at their
+        defaults, so that runs of before they existed stay finished.
     """
 
     flight: str
@@ -120,6 +128,34 @@ class FlightJob:
     telemetry: str = ""
     telemetry_offset_s: float | None = None
     focal_sigma_rel: float = 0.0
+    solver: str = "batch"
+    map_fixed: bool = False
+    sigmas: bool = True
+    principal_sigma_px: float = 0.0
+
+
+# FlightJob's estimator fields and their defaults (the fingerprint leaves defaults out).
+_ESTIMATOR_DEFAULTS = {
+    "focal_sigma_rel": 0.0,
+    "solver": "batch",
+    "map_fixed": False,
+    "sigmas": True,
+    "principal_sigma_px": 0.0,
+}
+
+
+def estimator_settings(job: FlightJob) -> EstimatorSettings:
+    """The estimator's settings of one flight, as ``signpose run`` makes them from the same
+    options (``cli.run.estimator_settings``)."""
+    smoother = SmootherSettings(compute_sigmas=job.sigmas)
+    if job.map_fixed:
+        smoother = replace(smoother, landmarks=FIXED)
+    return EstimatorSettings(
+        solver=job.solver,
+        smoother=smoother,
+        focal_sigma_rel=job.focal_sigma_rel,
+        principal_sigma_px=job.principal_sigma_px,
+    )
 
 
 @dataclass(frozen=True)
@@ -298,7 +334,7 @@ def run_flight(job: FlightJob) -> FlightOutcome:
             fps=job.fps or None,
             settings=RunSettings(
                 observe=ObserveSettings(cascade_path=job.cascade_path, workers=job.workers),
-                estimator=EstimatorSettings(focal_sigma_rel=job.focal_sigma_rel),
+                estimator=estimator_settings(job),
                 with_images=job.with_images,
                 plots=job.plots,
                 telemetry=telemetry,
@@ -463,8 +499,8 @@ def _fingerprint(job: FlightJob) -> str:
         {k: getattr(job, k) for k in _RESULT_FIELDS}
         | {"cascade": content_digest(job.cascade_path)}
         | _telemetry_key(job)
-        # only when set: the runs of before it match
-        | ({"focal_sigma_rel": job.focal_sigma_rel} if job.focal_sigma_rel else {}),
+        # only when set: the runs of before they existed match
+        | {k: getattr(job, k) for k, v in _ESTIMATOR_DEFAULTS.items() if getattr(job, k) != v},
     )
 
 
@@ -622,6 +658,10 @@ def run_batch(
     telemetry: str | None = None,
     telemetry_offset_s: float | None = None,
     focal_sigma_rel: float = 0.0,
+    solver: str = "batch",
+    map_fixed: bool = False,
+    sigmas: bool = True,
+    principal_sigma_px: float = 0.0,
 ) -> list[FlightOutcome]:
     """Run every flight not finished yet (or changed since) and write ``summary.csv``.
 
@@ -641,7 +681,8 @@ def run_batch(
             ``flight_names``), so that names do not depend on which flights
             are passed together.
         cascade_path: detector cascade XML for every flight; None: the bundled one.
-        telemetry, telemetry_offset_s, focal_sigma_rel: as ``FlightJob``'s.
+        telemetry, telemetry_offset_s, focal_sigma_rel, solver, map_fixed, sigmas,
+            principal_sigma_px: as ``FlightJob``'s.
 
     Returns:
         One outcome per input, in input order.
@@ -664,11 +705,30 @@ def run_batch(
         telemetry=telemetry or "",
         telemetry_offset_s=telemetry_offset_s,
         focal_sigma_rel=focal_sigma_rel,
+        solver=solver,
+        map_fixed=map_fixed,
+        sigmas=sigmas,
+        principal_sigma_px=principal_sigma_px,
         workers=1 if (jobs > 1 or scheduler) else 0,  # flights in parallel: 1 process each
     )
     outcomes, todo = _jobs(inputs, names, map_path, out, options, force)
     bar = _flights_bar(len(inputs), len(outcomes), progress)
-    running: set[str] = set()
+    return _run_and_summarise(todo, outcomes, names, out, bar, runner, jobs, scheduler)
+
+
+def _run_and_summarise(
+    todo: list[FlightJob],
+    outcomes: dict[str, FlightOutcome],
+    names: list[str],
+    out: Path,
+    bar: tqdm,
+    runner: Callable[[FlightJob], FlightOutcome],
+    jobs: int,
+    scheduler: str | None,
+) -> list[FlightOutcome]:
+    """Run ``todo`` into ``outcomes`` (the earlier runs' outcomes, by flight), then write
+    summary.csv and index.html, also when stopped; the outcomes in ``names``' order."""
+    outcomes, running = dict(outcomes), set()
     try:
         for outcome in _run_jobs(todo, runner, jobs, scheduler, running):
             outcomes[outcome.flight] = outcome

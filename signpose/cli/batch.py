@@ -15,7 +15,7 @@ from signpose.cli import (
     add_quiet,
     out_folder_arg,
 )
-from signpose.cli.run import add_focal_sigma, focal_sigma
+from signpose.cli.run import add_estimator_options, add_solver, focal_sigma, principal_sigma
 from signpose.core.errors import InputError
 
 
@@ -25,8 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run many flights in parallel (locally or on a Dask cluster)",
         description="Run every flight like `signpose run`, each into DIR/<flight>/, and write "
         "DIR/summary.csv. A failed flight is recorded and the rest go on; a rerun skips a "
-        "finished flight only when its input, map, camera, ground truth, --topic/--fps and the "
-        "signpose version are unchanged (--force redoes all), and keeps the summary rows of "
+        "finished flight only when its input, map, camera, ground truth, --topic/--fps, the "
+        "estimator's options and the signpose version are unchanged (--force redoes all), and keeps the summary rows of "
         "flights not passed this time. The camera defaults to camera.yaml beside each input "
         "(else the log's calibration) and groundtruth.tum beside an input is compared with. "
         "Ctrl-C or SIGTERM stops the batch at once (exit 130 or 143): summary.csv lists the "
@@ -66,7 +66,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="telemetry time minus video time [s] for every flight (default: estimated)",
     )
-    add_focal_sigma(p)
+    add_solver(p)
+    add_estimator_options(p)
     add_cascade(p)
     add_quiet(p)
     p.set_defaults(func=run)
@@ -92,7 +93,11 @@ def run(args: argparse.Namespace) -> int:
         cascade_path=args.cascade,
         telemetry=args.telemetry,
         telemetry_offset_s=args.telemetry_offset,
+        solver=args.solver,
+        map_fixed=args.map_fixed,
+        sigmas=not args.no_sigmas,
         focal_sigma_rel=focal_sigma(args),
+        principal_sigma_px=principal_sigma(args),
     )
     failed = [o for o in outcomes if o.status is FlightStatus.FAILED]
     skipped = sum(o.skipped for o in outcomes)

@@ -12,9 +12,12 @@ import numpy as np
 from signpose.cli import add_quiet, out_folder_arg
 from signpose.cli.run import (
     add_focal_sigma,
+    add_map_fixed,
+    add_principal_sigma,
     add_telemetry,
     focal_sigma,
     fusion_settings,
+    principal_sigma,
     telemetry_request,
     trust_warnings,
 )
@@ -66,17 +69,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--max-speed", type=float, default=None, help="baseline speed gate [m/s]")
     p.add_argument("--no-sigmas", action="store_true", help="skip marginal covariances")
-    p.add_argument(
-        "--map-fixed",
-        action="store_true",
-        help="treat the survey as exact (default: each keypoint with its sign's sigma_m)",
-    )
+    add_map_fixed(p)
     p.add_argument(
         "--fixed-motion-prior",
         action="store_true",
         help="keep the motion prior's default strength (default: chosen from the flight)",
     )
     add_focal_sigma(p)
+    add_principal_sigma(p)
     add_telemetry(p, log_input=False)
     add_quiet(p)
     p.set_defaults(func=run)
@@ -125,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         smoother=smoother,
         per_frame=per_frame,
         focal_sigma_rel=focal_sigma(args),
+        principal_sigma_px=principal_sigma(args),
     )
     if args.fixed_motion_prior:
         settings = replace(settings, tune_motion=False)

@@ -25,13 +25,17 @@ from signpose.core.errors import InputError
 from signpose.estimator.estimate import EstimatorSettings
 from signpose.estimator.fusion import FusionSettings, body_T_cam_from_mounting
 from signpose.estimator.refine import SUSPECT_MOVED_SIGMAS
-from signpose.estimator.smoother import SmootherSettings
+from signpose.estimator.smoother import FIXED, SmootherSettings
 from signpose.io.camera_file import load_camera
 from signpose.io.clock import parse_start_time
 from signpose.io.results import read_report
 from signpose.io.telemetry import TelemetryRequest
 from signpose.maps.loader import load_map
 from signpose.pipeline import CONTRADICTIONS, STAGES, RefusalReason, RunResult, RunSettings
+
+# --principal-sigma's upper bound [px]: a calibration that unsure of its principal point
+# (a tenth of a 1280 px image) is no calibration; a larger value is a typo.
+MAX_PRINCIPAL_SIGMA_PX = 128.0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -56,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--topic", help="MCAP image topic (needed when the log has several)")
     p.add_argument("--fps", type=float, help="frame rate of an image folder without frames.csv")
     p.add_argument("--codes", type=codes_arg, help="codes to look for (default: the map's)")
-    p.add_argument("--solver", choices=("batch", "isam2"), default="batch", help="smoother solver")
+    add_solver(p)
     add_search(p)
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument(
@@ -69,16 +73,75 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="time of the first frame of a video or --fps folder (ISO 8601 with a zone, or "
         "epoch seconds; default: the video's creation_time, else 0)",
     )
+    add_estimator_options(p)
+    add_telemetry(p, log_input=True)
+    add_cascade(p)
+    add_quiet(p)
+    p.set_defaults(func=run)
+
+
+def add_solver(p: argparse.ArgumentParser) -> None:
+    """--solver: the smoother's solver."""
+    p.add_argument("--solver", choices=("batch", "isam2"), default="batch", help="smoother solver")
+
+
+def add_estimator_options(p: argparse.ArgumentParser) -> None:
+    """--no-sigmas, --map-fixed, --focal-sigma and --principal-sigma, as ``signpose run``
+    has them (``estimator_settings`` reads them, with --solver)."""
     p.add_argument(
         "--no-sigmas",
         action="store_true",
         help="skip the smoother's marginal sigmas (faster on long flights; no sigma bands)",
     )
+    add_map_fixed(p)
     add_focal_sigma(p)
-    add_telemetry(p, log_input=True)
-    add_cascade(p)
-    add_quiet(p)
-    p.set_defaults(func=run)
+    add_principal_sigma(p)
+
+
+def estimator_settings(args: argparse.Namespace) -> EstimatorSettings:
+    """The estimator's settings from --solver and ``add_estimator_options``' options."""
+    smoother = SmootherSettings(compute_sigmas=not args.no_sigmas)
+    if args.map_fixed:
+        smoother = replace(smoother, landmarks=FIXED)
+    return EstimatorSettings(
+        solver=args.solver,
+        smoother=smoother,
+        focal_sigma_rel=focal_sigma(args),
+        principal_sigma_px=principal_sigma(args),
+    )
+
+
+def add_map_fixed(p: argparse.ArgumentParser) -> None:
+    """--map-fixed: the survey taken as exact."""
+    p.add_argument(
+        "--map-fixed",
+        action="store_true",
+        help="treat the survey as exact (default: each keypoint with its sign's sigma_m)",
+    )
+
+
+def add_principal_sigma(p: argparse.ArgumentParser) -> None:
+    """--principal-sigma: the calibration's principal point uncertainty, into the pose sigmas."""
+    p.add_argument(
+        "--principal-sigma",
+        type=float,
+        default=0.0,
+        metavar="PX",
+        help="the camera calibration's principal point sigma on each image axis [px], added "
+        "to the position sigmas: a principal point c px off shifts the camera across the view "
+        "by up to c / f times the range and the video cannot show it (default 0: exact)",
+    )
+
+
+def principal_sigma(args: argparse.Namespace) -> float:
+    """--principal-sigma checked (InputError outside [0, MAX_PRINCIPAL_SIGMA_PX])."""
+    px = args.principal_sigma
+    if not (math.isfinite(px) and 0.0 <= px <= MAX_PRINCIPAL_SIGMA_PX):
+        raise InputError(
+            f"--principal-sigma {px}: give the principal point's sigma in pixels, in "
+            f"[0, {MAX_PRINCIPAL_SIGMA_PX:g}], e.g. 5"
+        )
+    return px
 
 
 def add_focal_sigma(p: argparse.ArgumentParser) -> None:
@@ -294,11 +357,7 @@ def run(args: argparse.Namespace) -> int:
     camera = load_camera(args.camera) if args.camera else None
     settings = RunSettings(
         observe=observe_settings(args),
-        estimator=EstimatorSettings(
-            solver=args.solver,
-            smoother=SmootherSettings(compute_sigmas=not args.no_sigmas),
-            focal_sigma_rel=focal_sigma(args),
-        ),
+        estimator=estimator_settings(args),
         with_images=args.with_images,
         plots=not args.no_plots,
         ros2_bag=args.ros2_bag,
