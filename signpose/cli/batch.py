@@ -26,9 +26,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run every flight like `signpose run`, each into DIR/<flight>/, and write "
         "DIR/summary.csv. A failed flight is recorded and the rest go on; a rerun skips a "
         "finished flight only when its input, map, camera, ground truth, --topic/--fps, the "
-        "estimator's options and the signpose version are unchanged (--force redoes all), and keeps the summary rows of "
-        "flights not passed this time. The camera defaults to camera.yaml beside each input "
-        "(else the log's calibration) and groundtruth.tum beside an input is compared with. "
+        "estimator's options and the signpose version are unchanged (--force redoes all), and "
+        "keeps the summary rows of flights not passed this time. The camera defaults to "
+        "camera.yaml beside each input (else the log's calibration) and groundtruth.tum beside "
+        "an input is compared with. "
         "Ctrl-C or SIGTERM stops the batch at once (exit 130 or 143): summary.csv lists the "
         "running flights as interrupted and the queued ones as not_started, and a rerun runs them.",
     )
