@@ -174,3 +174,28 @@ def test_run_warnings_reach_the_user_without_echo(caplog):
     caplog.clear()
     pipeline._warn(said.append, ["x"], where="flight.mp4")
     assert said == ["warning: x"] and not caplog.records
+
+
+@pytest.mark.parametrize(
+    ("name", "extra"),
+    [("principal_15px", ()), ("principal_15px_stated", ("--principal-sigma", "15"))],
+)
+def test_the_principal_point_scenarios(faults, camera, tmp_path, name, extra):
+    """Both move the principal point 15 px in u; the stated one says so with its option."""
+    flight = faults.Flight(
+        spec=None,
+        folder=tmp_path,
+        video=tmp_path / "video.mp4",
+        camera_path=tmp_path / "camera.yaml",
+        gt=tmp_path / "groundtruth.tum",
+        sign_map=load_map(bundled_map_path()),
+        camera=camera,
+    )
+    scenario = next(s for s in faults.SCENARIOS if s.name == name)
+    setup = scenario.build(flight, tmp_path)
+    written = load_camera(setup.camera_path)
+    assert (written.cx, written.cy) == (camera.cx + 15.0, camera.cy)
+    assert setup.extra == extra
+    argv = faults._run_argv(setup, tmp_path / "out")
+    assert ("--principal-sigma" in argv) == bool(extra)
+    assert argv[len(argv) - len(extra) :] == list(extra)
