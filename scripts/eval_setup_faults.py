@@ -565,7 +565,7 @@ def _cell(row: dict, key: str) -> str:
 
 def print_table(rows: list[dict]) -> None:
     head = (
-        f"{'flight':<14}{'scenario':<19}{'exit':>4}  {'RMSE m sm / pnp':<17}"
+        f"{'flight':<14}{'scenario':<23}{'exit':>4}  {'RMSE m sm / pnp':<17}"
         f"{'ok sm / pnp':<13}{'ok>3sig sm / pnp':<18}{'noise scale':<12}{'warn':>4}  verdict"
     )
     print(head)
@@ -575,7 +575,7 @@ def print_table(rows: list[dict]) -> None:
         scale = "-" if not scales else "/".join(f"{v:.2f}" for v in scales.values())
         n_warn = f"{len(r['stderr_warnings'])}/{len(r.get('report_warnings', []))}"
         print(
-            f"{r['flight']:<14}{r['scenario']:<19}{r['exit']:>4}  {_cell(r, 'rmse'):<17}"
+            f"{r['flight']:<14}{r['scenario']:<23}{r['exit']:>4}  {_cell(r, 'rmse'):<17}"
             f"{_cell(r, 'ok'):<13}{_cell(r, 'beyond'):<18}{scale:<12}{n_warn:>13}  {r['verdict']}"
         )
 
@@ -606,7 +606,7 @@ def print_moved_suspect(rows: list[dict]) -> None:
         "survey sigmas (map_refined.json) marked suspect:"
     )
     head = (
-        f"{'flight':<14}{'scenario':<19}{'frames':>6}  {'ok sm / pnp':<13}"
+        f"{'flight':<14}{'scenario':<23}{'frames':>6}  {'ok sm / pnp':<13}"
         f"{'ok>3sig sm / pnp':<18}still wrong (ok poses)"
     )
     print(head)
@@ -617,7 +617,7 @@ def print_moved_suspect(rows: list[dict]) -> None:
             continue
         what_if = {"methods": m["methods"]}
         print(
-            f"{r['flight']:<14}{r['scenario']:<19}{m['frames_marked']:>6}  "
+            f"{r['flight']:<14}{r['scenario']:<23}{m['frames_marked']:>6}  "
             f"{_cell(what_if, 'ok'):<13}{_cell(what_if, 'beyond'):<18}"
             f"{'; '.join(w for w in m['why_bad'] if 'ok beyond' in w) or '-'}"
         )
