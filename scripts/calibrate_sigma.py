@@ -30,6 +30,9 @@ The independent scenes of ``scripts/eval_decoder.py --independent-only``
 renderer, other draws).
 
     .venv/bin/python scripts/calibrate_sigma.py [--n 150] [--scenes 150] [--seed 11] [--json P]
+    .venv/bin/python scripts/calibrate_sigma.py --n 0 --scenes 1000 --scene-seed 31 --check-only
+        (the current model on eval_decoder.py --independent-only --seed 31's crops,
+        with the share of |z| > 3 that eval_decoder does not print)
 """
 
 from __future__ import annotations
@@ -311,14 +314,27 @@ def main(argv: list[str] | None = None) -> int:
         default=150,
         help="independent-scene crops per condition in the fit (0: simulator crops only)",
     )
+    ap.add_argument(
+        "--scene-seed",
+        type=int,
+        default=None,
+        help="the independent scenes' seed (default --seed + 1000; eval_decoder.py "
+        "--independent-only --seed S renders the same crops with S)",
+    )
+    ap.add_argument(
+        "--check-only", action="store_true", help="print the current model's table, fit nothing"
+    )
     ap.add_argument("-q", "--quiet", action="store_true")
     args = ap.parse_args(argv)
     rows = collect(args.n, args.seed, args.quiet)
     if args.scenes > 0:
         # Their own stream: eval_decoder's checks use seeds 2017 and 99.
-        rows += collect_scenes(args.scenes, args.seed + 1000, args.quiet)
+        scene_seed = args.seed + 1000 if args.scene_seed is None else args.scene_seed
+        rows += collect_scenes(args.scenes, scene_seed, args.quiet)
     before = table(rows, SIGMA_MODEL)
     _print(before, "Current model (frontend/keypoint_noise.py)")
+    if args.check_only:
+        return 0
     model = fit(rows, groups=not args.likelihood_only)
     after = table(rows, model)
     _print(after, "Fitted model")
