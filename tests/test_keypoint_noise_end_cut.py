@@ -1,4 +1,4 @@
-"""keypoint_noise: a line that cuts a part near its end, on a sign of four parts or fewer.
+"""keypoint_noise: a line cutting a part near its end (four parts or fewer); stray noise.
 
 The refined homography of four parts or fewer passes through every measured
 centroid, so the cut part's frame follows its centroid and the inside grid
@@ -10,6 +10,7 @@ import math
 import cv2
 import numpy as np
 from signpose.frontend.decoder import decode_roi
+from signpose.frontend.keypoint_noise import _stray
 from signpose.frontend.sign import sign_shape
 
 from signpose.sim.crops import render_crop
@@ -75,3 +76,22 @@ def test_clean_parts_of_few_part_signs_show_no_cut():
         worst = max(math.hypot(*p) for p in res.sigma_inputs.part_pull_px.values())
         assert worst < 0.1, (i, code, res.sigma_inputs.part_pull_px)
     assert seen >= 18
+
+
+def test_the_stray_pull_of_plain_noise_is_taken_off_and_a_one_sided_glow_kept():
+    """Noise on the black around a part (clipped at 0, as the white
+    fractions are) gave a stray pull of its own; two noise sigmas' worth of
+    it comes off, a glow on one side of the outline stays."""
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 2.0 * math.pi, 20, endpoint=False)
+    ring = 6.0 * np.stack([np.cos(t), np.sin(t)], axis=1)
+    uv = np.repeat(ring[None], 200, axis=0)
+    noisy = np.clip(rng.normal(0.0, 0.05, (200, 20)), 0.0, 1.0)
+    _, raw = _stray(noisy, uv)
+    _, taken = _stray(noisy, uv, 2 * 0.05)
+    assert np.median(np.hypot(*raw.T)) > 0.03
+    assert np.mean(np.hypot(*taken.T) < 0.01) > 0.9
+    glow = noisy + np.where(ring[:, 0] > 0, 0.5, 0.0)
+    _, g_raw = _stray(glow, uv)
+    _, g_taken = _stray(glow, uv, 2 * 0.05)
+    assert np.all(np.hypot(*g_taken.T) > 0.95 * np.hypot(*g_raw.T))
