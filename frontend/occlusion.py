@@ -717,16 +717,6 @@ _OFF_BLACK_CHORD_INNER = 0.43
 # centre may lie for the object's extent to be measured: the extent's reach
 # (``_EXTENT_OFFSETS``).
 _OFF_BLACK_REACH = 0.15
-# Chord points of an off-black band may lie this far [white fraction] from
-# the arcs' level, or as far as the level is from black if that is more.
-_OFF_BLACK_SPREAD = 0.1
-# The least half width [diameters] of the arcs' footprint for a chord to be
-# measured across at all; the measured extent then decides (a bar barely off
-# black shows only its middle above the arcs' threshold). Half
-# ``_SINGLE_MIN_HALF``: on the independent scenes (1,000 per condition,
-# seeds 2017 / 99 / 7 / 5 / 31) wrong codes 42 -> 40, 9 of 50,000 correct
-# readings refused more (glare, mixed, one faded face).
-_OFF_BLACK_MIN_HALF = 0.5 * _SINGLE_MIN_HALF
 
 
 def _signed_runs(dev: list[float], sign: float, thr: float) -> list[tuple[float, float, float]]:
@@ -794,17 +784,14 @@ def off_black_bands(
             # Every chord point shows the object: off black on the same side,
             # and no farther from the arcs' level than they are from black.
             on = chord[k][keep[k]]
-            # (a bar barely off black, over a hidden white slot's JPEG ringing, is
-            # allowed ``_OFF_BLACK_SPREAD``).
-            spread = max(abs(level), _OFF_BLACK_SPREAD)
-            if not ((sign * on >= 0.5 * thr).all() and (np.abs(on - level) <= spread).all()):
+            if not ((sign * on >= 0.5 * thr).all() and (np.abs(on - level) <= abs(level)).all()):
                 continue
             # Each arc is the bar's footprint on the band: an oblique chord's
             # is wider than the bar by 1 / cos(its angle to the radius).
             u = (rim[j] - rim[i]) / max(float(np.hypot(*(rim[j] - rim[i]))), 1e-12)
             slant = abs(float(rim[i] @ u)) / 0.5
             half = 0.5 * math.sin(min(runs[i][1], runs[j][1])) * slant
-            if half < _OFF_BLACK_MIN_HALF:
+            if half < _SINGLE_MIN_HALF:
                 continue  # too thin to hide a coded slot
             band = Band(rim[i], rim[j], half)
             # A white slot reads black only with its centre under the bar

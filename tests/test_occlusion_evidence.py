@@ -312,34 +312,3 @@ def test_a_bar_lighter_than_the_print_over_a_black_slot_is_not_taken_for_a_glow(
     assert res.code is None and res.reason == DecodeReason.OCCLUDED
     unique = decode_roi(image, ["1010", "0101", "0011"])
     assert unique.code == "1010" and unique.erased_slots == (2,)
-
-
-def test_a_member_barely_off_black_over_a_white_slot_is_found(scene, monkeypatch):
-    """1010 with slot 1 under a member only 5 % of the contrast above the
-    print's black, on a dark photograph: its arcs on the rim band are under
-    ``_SINGLE_MIN_HALF`` wide (only its middle clears the threshold) and the
-    hidden slot's ringing lifts the chord over it to 0.14. Was read 0010."""
-    crop = _scene_crop(
-        scene,
-        "1010",
-        92,
-        sign_px=52.49044126191798,
-        rotation_deg=196.10914354408013,
-        tilt_deg=21.934113061119934,
-        tilt_axis_deg=119.83185655264799,
-        focal_px=1600.0,
-        photo="rocket",
-        black_level=30.411090962247595,
-        white_level=228.93014536944764,
-        psf_sigma_px=0.4320772862247279,
-        noise_sigma=1.4912864312360525,
-        jpeg_quality=89,
-        bar_over_slot=1,
-    )
-    assert crop.covered_slots == (1,)
-    res = decode_roi(crop.image, PAPER_CODES)
-    assert res.code is None and res.reason == DecodeReason.OCCLUDED
-    # The arcs' old least width and the chord's old spread: 0010 again.
-    monkeypatch.setattr(occlusion, "_OFF_BLACK_MIN_HALF", occlusion._SINGLE_MIN_HALF)
-    monkeypatch.setattr(occlusion, "_OFF_BLACK_SPREAD", 0.0)
-    assert decode_roi(crop.image, PAPER_CODES).code == "0010"
