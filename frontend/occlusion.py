@@ -160,6 +160,23 @@ rim at both ends).
   the print pass: 9); probes 1.5 px in (wrong codes 5 / 7 / 7).
 * Left: cuts shallower than a pixel (seed 2017's crop 708 of "one slot
   covered", 0.56 white 1 px in) and crops whose member cuts no white part.
+
+Tried and dropped (stop 24), each fitted on seed 5's wrong crops and then
+scored on two seeds never looked at (123 / 77, 1,000 crops per condition,
+the crops rendered once and decoded by each variant; seeds 2017 / 99 / 7 /
+5 / 31 as the development set):
+
+* ``off_black_bands`` measuring a chord's extent when its arcs are only half
+  ``_SINGLE_MIN_HALF`` wide, and letting chord points lie 0.1 from the arcs'
+  level (a member 5 % of the contrast above the print, over a hidden white
+  slot whose ringing lifts the chord to 0.14): development wrong codes 42 ->
+  40 (both on seed 5), 9 correct readings refused; held out 6 / 10 -> 6 /
+  10, 5 correct refused.
+* ``bars_through`` aiming its chords 0.04 beside each target too, on signs
+  under 34-36 px (a pixel is a large share of a slot there): development
+  40 -> 32 (7 of the 8 on seed 5), 63 correct refused; held out 6 / 10 ->
+  6 / 10, 9 correct refused. On all signs, with the centred chord's bar test
+  required as well: 42 -> 38 for 77 refused.
 """
 
 from __future__ import annotations
