@@ -45,7 +45,10 @@ with four parts or fewer joined by the shift a cut-off end predicts
 grid saw white throughout and the pull stayed 3-5x short on conductor and
 member crossings; independent scenes, 1,000 crops per condition, seeds
 2017 / 99 at 1.56 / 1.51 and 1.36 / 1.52 on the directional keypoint of
-"conductor in front" before, scratch re-scoring of the same decodes);
+"conductor in front" before, scratch re-scoring of the same decodes; with
+this module's other changes of that session, eval_decoder.py
+--independent-only --independent 1000 -q --seed 2017 / 99: 1.14 / 1.24
+and 1.06 / 1.06);
 ``stray_pull_k,a`` the shift that the stray white on its grown outline
 predicts (glare on one side), plus the shift that a band darker than print
 black on the edge of its centroid window predicts (the window's outline,
