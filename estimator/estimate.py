@@ -168,6 +168,26 @@ class EstimatorSettings:
         return d
 
 
+def settings_from_options(
+    solver: str = "batch",
+    map_fixed: bool = False,
+    sigmas: bool = True,
+    focal_sigma_rel: float = 0.0,
+    principal_sigma_px: float = 0.0,
+) -> EstimatorSettings:
+    """The settings that ``signpose run``'s and ``batch``'s estimator options make
+    (--solver, --map-fixed, --no-sigmas, --focal-sigma, --principal-sigma)."""
+    smoother = SmootherSettings(compute_sigmas=sigmas)
+    if map_fixed:
+        smoother = replace(smoother, landmarks=FIXED)
+    return EstimatorSettings(
+        solver=solver,
+        smoother=smoother,
+        focal_sigma_rel=focal_sigma_rel,
+        principal_sigma_px=principal_sigma_px,
+    )
+
+
 @dataclass(frozen=True)
 class MethodEstimate:
     """One method's trajectory over all frames.

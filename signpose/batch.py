@@ -25,7 +25,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Protocol
 
@@ -33,8 +33,7 @@ from tqdm import tqdm
 
 from signpose.core.errors import InputError, SignposeError, one_line
 from signpose.core.fileio import atomic_write, ensure_dir
-from signpose.estimator.estimate import EstimatorSettings
-from signpose.estimator.smoother import FIXED, SmootherSettings
+from signpose.estimator.estimate import EstimatorSettings, settings_from_options
 from signpose.estimator.status import PoseStatus
 from signpose.fingerprint import (
     FINGERPRINT_KEY,
@@ -135,26 +134,15 @@ class FlightJob:
 
 
 # FlightJob's estimator fields and their defaults (the fingerprint leaves defaults out).
-_ESTIMATOR_DEFAULTS = {
-    "focal_sigma_rel": 0.0,
-    "solver": "batch",
-    "map_fixed": False,
-    "sigmas": True,
-    "principal_sigma_px": 0.0,
-}
+_ESTIMATOR_FIELDS = ("focal_sigma_rel", "solver", "map_fixed", "sigmas", "principal_sigma_px")
+_ESTIMATOR_DEFAULTS = {f.name: f.default for f in fields(FlightJob) if f.name in _ESTIMATOR_FIELDS}
 
 
 def estimator_settings(job: FlightJob) -> EstimatorSettings:
     """The estimator's settings of one flight, as ``signpose run`` makes them from the same
-    options (``cli.run.estimator_settings``)."""
-    smoother = SmootherSettings(compute_sigmas=job.sigmas)
-    if job.map_fixed:
-        smoother = replace(smoother, landmarks=FIXED)
-    return EstimatorSettings(
-        solver=job.solver,
-        smoother=smoother,
-        focal_sigma_rel=job.focal_sigma_rel,
-        principal_sigma_px=job.principal_sigma_px,
+    options (``estimate.settings_from_options``)."""
+    return settings_from_options(
+        job.solver, job.map_fixed, job.sigmas, job.focal_sigma_rel, job.principal_sigma_px
     )
 
 

@@ -22,10 +22,9 @@ from signpose.cli import (
     out_folder_arg,
 )
 from signpose.core.errors import InputError
-from signpose.estimator.estimate import EstimatorSettings
+from signpose.estimator.estimate import EstimatorSettings, settings_from_options
 from signpose.estimator.fusion import FusionSettings, body_T_cam_from_mounting
 from signpose.estimator.refine import SUSPECT_MOVED_SIGMAS
-from signpose.estimator.smoother import FIXED, SmootherSettings
 from signpose.io.camera_file import load_camera
 from signpose.io.clock import parse_start_time
 from signpose.io.results import read_report
@@ -100,14 +99,12 @@ def add_estimator_options(p: argparse.ArgumentParser) -> None:
 
 def estimator_settings(args: argparse.Namespace) -> EstimatorSettings:
     """The estimator's settings from --solver and ``add_estimator_options``' options."""
-    smoother = SmootherSettings(compute_sigmas=not args.no_sigmas)
-    if args.map_fixed:
-        smoother = replace(smoother, landmarks=FIXED)
-    return EstimatorSettings(
-        solver=args.solver,
-        smoother=smoother,
-        focal_sigma_rel=focal_sigma(args),
-        principal_sigma_px=principal_sigma(args),
+    return settings_from_options(
+        args.solver,
+        args.map_fixed,
+        not args.no_sigmas,
+        focal_sigma(args),
+        principal_sigma(args),
     )
 
 
