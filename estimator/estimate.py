@@ -32,6 +32,7 @@ from signpose.estimator.fusion import (
     on_smoother,
     pose_statuses,
 )
+from signpose.estimator.intrinsics_check import IntrinsicsCheck, check_intrinsics, disagreement
 from signpose.estimator.intrinsics_share import with_intrinsics_shares
 from signpose.estimator.noise_scale import (
     exact_map_pose,
@@ -317,6 +318,7 @@ class EstimateResult:
     pixel_noise_scale: float = 1.0
     pose_noise_scale: float = 1.0
     warnings: tuple[str, ...] = ()
+    intrinsics: IntrinsicsCheck | None = None
 
 
 # A pixel noise scale above this is not noise the decoder misjudged but a model
@@ -660,6 +662,7 @@ class _SmoothedRun:
     fusion: FusionResult | None = None  # with telemetry: "fused" is in methods
     pose_scale: float = 1.0  # see EstimateResult.pose_noise_scale
     pixel_scale: float = 1.0  # the smoother's residual noise scale, on top of PnP's
+    intrinsics: IntrinsicsCheck | None = None  # the video's intrinsics against the file's
 
 
 def _rejections(
@@ -802,6 +805,8 @@ def _smoothed(
             r = smooth_batch(kept, stamps, list(r.world_T_cam), camera, motion.settings, p.default)
     r, by_kernel = _final_solve(p, r, active)
     r, pose_scale = _pose_scaled(r, [scaled_pose(q, pixel_scale) for q in per_frame["pnp"]], s)
+    stated = (s.focal_sigma_rel, s.principal_sigma_px)
+    intrinsics = check_intrinsics(meas.subset(active), r.world_T_cam, camera, pose_scale, stated)
     timing = {"smoothed": time.perf_counter() - t0, "sigmas": r.sigma_seconds}
     status = _smoothed_status(meas.subset(active), r, camera, s.status)
     methods = {"smoothed": _from_smoother("smoothed", stamps, r, status=status)}
@@ -826,6 +831,7 @@ def _smoothed(
         fusion=fused,
         pose_scale=pose_scale,
         pixel_scale=pixel_scale,
+        intrinsics=intrinsics,
     )
 
 
@@ -1038,6 +1044,23 @@ def _checked(
     }, warnings
 
 
+def _intrinsics_checked(
+    methods: dict[str, MethodEstimate],
+    warnings: tuple[str, ...],
+    run: _SmoothedRun | None,
+    camera: CameraModel,
+) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
+    """``methods`` with no pose ``ok`` or ``weak`` and a warning when the video's
+    intrinsics disagree with the camera file's (``estimator.intrinsics_check``):
+    a focal length a few per cent off moves every pose by as much of its range,
+    which no sigma here covers."""
+    check = None if run is None else run.intrinsics
+    if check is None or not check.disagrees:
+        return methods, warnings
+    methods = _relabelled(methods, (PoseStatus.OK, PoseStatus.WEAK), PoseStatus.SUSPECT)
+    return methods, (*warnings, disagreement(check, camera))
+
+
 def _noise_scaled(
     frames: Sequence[FrameObservations],
     per_frame: dict[str, list[FramePose]],
@@ -1075,14 +1098,13 @@ def estimate_trajectories(
         frames: the flight's observations in time order (raw pixels).
         sign_map: the surveyed signs.
         camera: the camera (its image size must match the observations).
-        settings: methods, solver and their settings.
-        progress: show tqdm bars over frames.
+        settings: methods, solver and their settings; progress: show tqdm bars over frames.
         telemetry, fusion: the drone's GNSS/IMU/gimbal (None: nothing changes), its fusion.
         solved_pnp: PnP calls the tracker made on these frames; the "pnp"
             method reuses those whose inputs are exactly its own (see
             ``perframe.run_per_frame``): the result is the same.
-        per_frame_done: the per-frame methods run on exactly these frames as they were
-            observed (``perframe.PerFrameRun``; else ValueError): taken, not solved again.
+        per_frame_done: the per-frame methods run on exactly these frames as observed
+            (``perframe.PerFrameRun``; else ValueError): taken, not solved again.
 
     Returns:
         The EstimateResult. Methods: "baseline", "pnp", "smoothed" as asked;
@@ -1116,6 +1138,7 @@ def estimate_trajectories(
         methods.update(run.methods)
         timing.update(run.timing_s)
     methods, warnings = _checked(frames, sign_map, camera, methods, scale * more, s)
+    methods, warnings = _intrinsics_checked(methods, warnings, run, camera)
     base = per_frame.get("baseline", ())
     rejected = tuple((p.frame, p.reason) for p in base if p.world_T_cam is None)
     return EstimateResult(
@@ -1136,4 +1159,5 @@ def estimate_trajectories(
         pixel_noise_scale=scale * more,
         pose_noise_scale=pose_scale,
         warnings=warnings,
+        intrinsics=None if run is None else run.intrinsics,
     )

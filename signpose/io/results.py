@@ -244,6 +244,11 @@ def report_dict(result: EstimateResult) -> dict:
             "pixel_noise_scale": result.pixel_noise_scale,
             "pose_noise_scale": result.pose_noise_scale,
             **({"warnings": list(result.warnings)} if result.warnings else {}),
+            **(
+                {"intrinsics_check": result.intrinsics.as_dict()}
+                if result.intrinsics is not None
+                else {}
+            ),
         }
     )
 
