@@ -14,11 +14,14 @@ from the video's, and how well the flight determines them.
 measurements, from the smoothed poses and the file's intrinsics. Each
 frame's pose is eliminated in closed form (its 6x6 block), leaving a small
 system in the intrinsics and the signs' offsets (their survey sigmas as
-priors). Its result carries the estimated change of each intrinsic and its
-sigma (scaled by the flight's pixel noise scale). ``IntrinsicsCheck.disagrees``
-is True when the focal length's relative change exceeds both
-``CheckSettings.min_focal_rel`` and ``CheckSettings.z`` sigmas, or the
-principal point's exceeds ``min_principal_px`` and ``z`` sigmas.
+priors, the file's intrinsics as a weak prior). Its result carries the
+estimated change of each intrinsic and its sigma (the measurements' sigmas
+carry the flight's pixel noise scale). ``IntrinsicsCheck.disagrees`` is True
+when the focal length's relative change exceeds both
+``CheckSettings.min_focal_rel`` and ``z`` times its sigma, or a principal
+point coordinate's exceeds ``min_principal_px`` and ``z_principal`` times its
+sigma; each sigma has a floor for the keypoints' shared biases, which no
+flight length averages away, and the uncertainty the user stated added.
 
 The undistorted pixels were made with the file's intrinsics, so the lens's
 distortion is taken as the file states it; a focal length error then also
@@ -47,7 +50,15 @@ class CheckSettings:
     """When the video's intrinsics disagree with the file's.
 
     Attributes:
-        z: sigmas of the estimated change beyond which it is no noise.
+        z: sigmas of the estimated change beyond which it is no noise; for the
+            principal point ``z_principal`` (it trades against the pitch and
+            yaw of every pose, and takes up any bias of the keypoints that
+            the flight shares).
+        focal_floor_rel, principal_floor_px: a sigma that no flight length
+            averages away, added in quadrature to the fit's: the keypoints'
+            shared biases (on correct set-ups, eval_flight's and the demo's
+            flights: focal changes within 1.4 of their sigmas, the principal
+            point's v up to 4.2 sigmas, 2-8 px, of one sign).
         min_focal_rel: smallest relative focal change worth a warning.
         min_principal_px: smallest principal point change worth a warning [px].
         iterations: Gauss-Newton iterations.
@@ -62,8 +73,11 @@ class CheckSettings:
     """
 
     z: float = 5.0
+    z_principal: float = 4.0
+    focal_floor_rel: float = 0.0025
+    principal_floor_px: float = 2.0
     min_focal_rel: float = 0.01
-    min_principal_px: float = 6.0
+    min_principal_px: float = 8.0
     iterations: int = 4
     min_frames: int = 10
     max_frames: int = 400
@@ -289,10 +303,10 @@ def check_intrinsics(
     rel = 0.5 * (delta[0] / k0[0] + delta[1] / k0[1])
     jr = np.array([0.5 / k0[0], 0.5 / k0[1]])
     rel_sigma = float(np.sqrt(jr @ cov[:2, :2] @ jr))
-    focal_tol = settings.z * np.hypot(rel_sigma, stated[0])
+    focal_tol = settings.z * np.sqrt(rel_sigma**2 + settings.focal_floor_rel**2 + stated[0] ** 2)
     focal_off = abs(rel) > max(settings.min_focal_rel, focal_tol)
-    pp_tol = settings.z * np.hypot(sigma[2:], stated[1])
-    pp = np.abs(delta[2:]) > np.maximum(settings.min_principal_px, pp_tol)
+    pp_sd = np.sqrt(sigma[2:] ** 2 + settings.principal_floor_px**2 + stated[1] ** 2)
+    pp = np.abs(delta[2:]) > np.maximum(settings.min_principal_px, settings.z_principal * pp_sd)
     return IntrinsicsCheck(
         frames=len(used),
         delta=delta,
