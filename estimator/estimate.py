@@ -33,7 +33,7 @@ from signpose.estimator.fusion import (
     pose_statuses,
 )
 from signpose.estimator.intrinsics_check import IntrinsicsCheck, check_intrinsics, disagreement
-from signpose.estimator.intrinsics_share import with_intrinsics_shares
+from signpose.estimator.intrinsics_share import with_intrinsics_shares, with_principal_share
 from signpose.estimator.noise_scale import (
     exact_map_pose,
     inflated_pose,
@@ -1048,16 +1048,31 @@ def _intrinsics_checked(
     methods: dict[str, MethodEstimate],
     warnings: tuple[str, ...],
     run: _SmoothedRun | None,
-    camera: CameraModel,
+    inputs: tuple[Sequence[FrameObservations], SignMap, CameraModel],
+    s: EstimatorSettings,
 ) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
-    """``methods`` with no pose ``ok`` or ``weak`` and a warning when the video's
-    intrinsics disagree with the camera file's (``estimator.intrinsics_check``):
-    a focal length a few per cent off moves every pose by as much of its range,
-    which no sigma here covers."""
+    """``methods`` and the warnings after the video's check of the camera file's
+    intrinsics (``estimator.intrinsics_check``), with the flight's frames, map and camera.
+
+    A focal length a few per cent off moves every pose by as much of its
+    range, which no sigma here covers: no pose stays ``ok`` or ``weak``. A
+    principal point off mostly turns the poses; what it moves, its share
+    with the change the video sees (``intrinsics_share``) covers: the sigmas
+    take it, as ``--principal-sigma`` would add it (a check that fires on a
+    bias of the keypoints then costs precision, not the poses).
+    """
     check = None if run is None else run.intrinsics
     if check is None or not check.disagrees:
         return methods, warnings
-    methods = _relabelled(methods, (PoseStatus.OK, PoseStatus.WEAK), PoseStatus.SUSPECT)
+    frames, sign_map, camera = inputs
+    if check.focal_off:
+        methods = _relabelled(methods, (PoseStatus.OK, PoseStatus.WEAK), PoseStatus.SUSPECT)
+    else:
+        px = check.principal_change_px
+        methods = {
+            k: with_principal_share(m, frames, sign_map, camera, px, s.status.weak_sigma_m)
+            for k, m in methods.items()
+        }
     return methods, (*warnings, disagreement(check, camera))
 
 
@@ -1138,7 +1153,7 @@ def estimate_trajectories(
         methods.update(run.methods)
         timing.update(run.timing_s)
     methods, warnings = _checked(frames, sign_map, camera, methods, scale * more, s)
-    methods, warnings = _intrinsics_checked(methods, warnings, run, camera)
+    methods, warnings = _intrinsics_checked(methods, warnings, run, (frames, sign_map, camera), s)
     base = per_frame.get("baseline", ())
     rejected = tuple((p.frame, p.reason) for p in base if p.world_T_cam is None)
     return EstimateResult(

@@ -95,7 +95,8 @@ class IntrinsicsCheck:
         sigma: (4,) their sigmas [px] (pixel noise scale applied).
         focal_rel: the focal length's relative change, mean of fx and fy.
         focal_rel_sigma: its sigma.
-        disagrees: the change is beyond noise and material (module docstring).
+        focal_off: the focal length's change is beyond noise and material
+            (module docstring); principal_off: the principal point's is.
     """
 
     frames: int
@@ -103,7 +104,18 @@ class IntrinsicsCheck:
     sigma: np.ndarray
     focal_rel: float
     focal_rel_sigma: float
-    disagrees: bool
+    focal_off: bool
+    principal_off: bool
+
+    @property
+    def disagrees(self) -> bool:
+        """The video disagrees with the file on the focal length or the principal point."""
+        return self.focal_off or self.principal_off
+
+    @property
+    def principal_change_px(self) -> float:
+        """The larger of the principal point's two changes [px]."""
+        return float(np.max(np.abs(self.delta[2:])))
 
     def as_dict(self) -> dict:
         """The check for report.json."""
@@ -114,7 +126,8 @@ class IntrinsicsCheck:
             "sigma_px": {k: round(float(v), 3) for k, v in zip(names, self.sigma, strict=True)},
             "focal_rel": round(self.focal_rel, 5),
             "focal_rel_sigma": round(self.focal_rel_sigma, 5),
-            "disagrees": self.disagrees,
+            "focal_off": self.focal_off,
+            "principal_off": self.principal_off,
         }
 
 
@@ -313,20 +326,33 @@ def check_intrinsics(
         sigma=sigma,
         focal_rel=float(rel),
         focal_rel_sigma=rel_sigma,
-        disagrees=bool(focal_off or pp.any()),
+        focal_off=bool(focal_off),
+        principal_off=bool(pp.any()),
     )
 
 
 def disagreement(check: IntrinsicsCheck, camera: CameraModel) -> str:
-    """The warning for a check that ``disagrees``: what the video says, and what to do."""
+    """The warning for a check that ``disagrees``: what the video says, what was done
+    (``estimate._intrinsics_checked``) and what to do."""
     d, sg = check.delta, check.sigma
-    return (
+    seen = (
         f"the video does not fit the camera file's intrinsics: seen from {check.frames} frames "
         f"the focal length is {100 * check.focal_rel:+.1f} % "
-        f"(sigma {100 * check.focal_rel_sigma:.1f} %) "
-        f"from the file's (fx {camera.fx + d[0]:.0f} for {camera.fx:.0f} px) and the principal "
-        f"point ({d[2]:+.1f}, {d[3]:+.1f}) px (sigma {sg[2]:.1f}, {sg[3]:.1f}) from it; poses made "
-        "with the file's values are off by about as much in range: every pose is marked suspect. "
-        "Recalibrate at this zoom and focus, or state the file's uncertainty "
+        f"(sigma {100 * check.focal_rel_sigma:.1f} %) from the file's "
+        f"(fx {camera.fx + d[0]:.0f} for {camera.fx:.0f} px) and the principal point "
+        f"({d[2]:+.1f}, {d[3]:+.1f}) px (sigma {sg[2]:.1f}, {sg[3]:.1f}) from it; "
+    )
+    if check.focal_off:
+        done = (
+            "poses made with the file's focal length are off by about as much of their range: "
+            "every pose is marked suspect. "
+        )
+    else:
+        done = (
+            f"the sigmas include a principal point share of {check.principal_change_px:.0f} px "
+            "(as --principal-sigma would add). "
+        )
+    return (
+        seen + done + "Recalibrate at this zoom and focus, or state the file's uncertainty "
         "(--focal-sigma, --principal-sigma)"
     )

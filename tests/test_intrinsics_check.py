@@ -197,3 +197,23 @@ def test_the_run_marks_every_pose_suspect_when_the_file_is_off(estimated):
         assert not any(st in (PoseStatus.OK, PoseStatus.WEAK) for st in m.status)
     # what the video says is the camera's own focal length
     assert abs(wrong.intrinsics.focal_rel - (1 / 1.08 - 1)) < 3 * wrong.intrinsics.focal_rel_sigma
+
+
+def test_a_principal_point_off_widens_the_sigmas_instead(estimated):
+    """The principal point mostly turns the poses: its share covers what it moves."""
+    sign_map, camera, frames, gt, _ = estimator_scene(
+        n_frames=60, sigma_px=0.2, seed=5, flat=False, duration_s=20
+    )
+    s = replace(EstimatorSettings(), methods=("pnp", "smoothed"))
+    wrong = estimate_trajectories(frames, sign_map, _scaled(camera, du=40.0), s, False)
+    right = estimated[0].methods["smoothed"]
+    c = wrong.intrinsics
+    assert c.principal_off and not c.focal_off
+    assert sum("principal point share of" in w for w in wrong.warnings) == 1
+    m = wrong.methods["smoothed"]
+    trusted = np.array([st in (PoseStatus.OK, PoseStatus.WEAK) for st in m.status])
+    assert trusted.mean() > 0.8  # not refused
+    z = np.abs(m.world_T_cam[:, :3, 3] - gt.world_t_cam)[trusted] / m.sigma_xyz[trusted]
+    assert np.mean(z.max(axis=1) > 3) < 0.05
+    # the share: the same flight's sigmas with the right camera are 2-11x smaller
+    assert np.all(np.median(m.sigma_xyz / right.sigma_xyz, axis=0) > 1.8)
