@@ -311,11 +311,17 @@ def check_intrinsics(
         k = k + dg[:_N_INTRINSICS]
         offsets = offsets + dg[_N_INTRINSICS:].reshape(-1, 3)
     cov = np.linalg.inv(S) * noise_scale**2
-    sigma = np.sqrt(np.diag(cov)[:_N_INTRINSICS])
+    var = np.diag(cov)[:_N_INTRINSICS]
+    if not (np.all(np.isfinite(var)) and np.all(var > 0) and np.all(np.isfinite(k))):
+        return None  # too little seen to fit (a singular system): no check
+    sigma = np.sqrt(var)
     delta = k - k0
     rel = 0.5 * (delta[0] / k0[0] + delta[1] / k0[1])
     jr = np.array([0.5 / k0[0], 0.5 / k0[1]])
-    rel_sigma = float(np.sqrt(jr @ cov[:2, :2] @ jr))
+    rel_var = float(jr @ cov[:2, :2] @ jr)
+    if not rel_var > 0:
+        return None
+    rel_sigma = float(np.sqrt(rel_var))
     focal_tol = settings.z * np.sqrt(rel_sigma**2 + settings.focal_floor_rel**2 + stated[0] ** 2)
     focal_off = abs(rel) > max(settings.min_focal_rel, focal_tol)
     pp_sd = np.sqrt(sigma[2:] ** 2 + settings.principal_floor_px**2 + stated[1] ** 2)
