@@ -1019,10 +1019,12 @@ def _checked(
     methods: dict[str, MethodEstimate],
     scale: float,
     s: EstimatorSettings,
+    run: _SmoothedRun | None = None,
 ) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
     """The signs' orientations checked (``check_orientations``), then ``distrusted``,
     then the focal length's and the principal point's stated shares added to the
-    sigmas (``intrinsics_share``).
+    sigmas (``intrinsics_share``), then the video's own check of them acted on
+    (``_intrinsics_checked``, with the smoother's ``run``).
 
     With keypoints that miss by more than noise (``scale`` above
     ``MAX_PIXEL_NOISE_SCALE``) a sign whose centre misses too is not blamed
@@ -1036,23 +1038,30 @@ def _checked(
         check_orientations(frames, sign_map, camera, methods["smoothed"], bent)
     methods, warnings = distrusted(methods, scale)
     weak = s.status.weak_sigma_m
-    return {
+    methods = {
         k: with_intrinsics_shares(
             m, frames, sign_map, camera, s.focal_sigma_rel, s.principal_sigma_px, weak
         )
         for k, m in methods.items()
-    }, warnings
+    }
+    return _intrinsics_checked(methods, warnings, run, (frames, sign_map, camera, scale), s)
 
 
 def _intrinsics_checked(
     methods: dict[str, MethodEstimate],
     warnings: tuple[str, ...],
     run: _SmoothedRun | None,
-    inputs: tuple[Sequence[FrameObservations], SignMap, CameraModel],
+    fit: tuple[Sequence[FrameObservations], SignMap, CameraModel, float],
     s: EstimatorSettings,
 ) -> tuple[dict[str, MethodEstimate], tuple[str, ...]]:
     """``methods`` and the warnings after the video's check of the camera file's
-    intrinsics (``estimator.intrinsics_check``), with the flight's frames, map and camera.
+    intrinsics (``estimator.intrinsics_check``); ``fit``: the flight's frames, map,
+    camera and pixel noise scale.
+
+    With keypoints that miss by more than noise (the scale above
+    ``WEAK_PIXEL_NOISE_SCALE``) the check is not acted on: the camera file and
+    the map do not fit for another reason (``distrusted`` said so), and the
+    check would blame the intrinsics for it.
 
     A focal length a few per cent off moves every pose by as much of its
     range, which no sigma here covers: no pose stays ``ok`` or ``weak``. A
@@ -1062,9 +1071,9 @@ def _intrinsics_checked(
     bias of the keypoints then costs precision, not the poses).
     """
     check = None if run is None else run.intrinsics
-    if check is None or not check.disagrees:
+    frames, sign_map, camera, scale = fit
+    if check is None or not check.disagrees or scale > WEAK_PIXEL_NOISE_SCALE:
         return methods, warnings
-    frames, sign_map, camera = inputs
     if check.focal_off:
         methods = _relabelled(methods, (PoseStatus.OK, PoseStatus.WEAK), PoseStatus.SUSPECT)
     else:
@@ -1152,8 +1161,7 @@ def estimate_trajectories(
     if run is not None:
         methods.update(run.methods)
         timing.update(run.timing_s)
-    methods, warnings = _checked(frames, sign_map, camera, methods, scale * more, s)
-    methods, warnings = _intrinsics_checked(methods, warnings, run, (frames, sign_map, camera), s)
+    methods, warnings = _checked(frames, sign_map, camera, methods, scale * more, s, run)
     base = per_frame.get("baseline", ())
     rejected = tuple((p.frame, p.reason) for p in base if p.world_T_cam is None)
     return EstimateResult(

@@ -62,6 +62,13 @@ class CheckSettings:
         min_focal_rel: smallest relative focal change worth a warning.
         min_principal_px: smallest principal point change worth a warning [px].
         iterations: Gauss-Newton iterations.
+        settled_step: the last iteration moves no intrinsic by more than this
+            (focal lengths relative to themselves, the principal point to the
+            image width), or the fit has not settled.
+        plausible_focal_rel, plausible_principal_rel: a change beyond these
+            (the same units) is no calibration slip but a fit that ran off
+            (a map that does not fit: a moved or swapped sign, wrong
+            diameters): the check then claims nothing.
         min_frames: frames with a pose and keypoints needed to check at all.
         max_frames: at most this many frames, evenly spread over the flight,
             are used (the cost stays bounded on long flights).
@@ -78,7 +85,10 @@ class CheckSettings:
     principal_floor_px: float = 2.0
     min_focal_rel: float = 0.01
     min_principal_px: float = 8.0
-    iterations: int = 4
+    iterations: int = 6
+    settled_step: float = 1e-3
+    plausible_focal_rel: float = 0.25
+    plausible_principal_rel: float = 0.15
     min_frames: int = 10
     max_frames: int = 400
     prior_focal_rel: float = 0.2
@@ -95,8 +105,10 @@ class IntrinsicsCheck:
         sigma: (4,) their sigmas [px] (pixel noise scale applied).
         focal_rel: the focal length's relative change, mean of fx and fy.
         focal_rel_sigma: its sigma.
-        focal_off: the focal length's change is beyond noise and material
-            (module docstring); principal_off: the principal point's is.
+        settled: the fit converged to a change a calibration slip can make
+            (``CheckSettings.plausible_*``); else it claims nothing.
+        focal_off: settled, and the focal length's change is beyond noise and
+            material (module docstring); principal_off: the principal point's is.
     """
 
     frames: int
@@ -104,6 +116,7 @@ class IntrinsicsCheck:
     sigma: np.ndarray
     focal_rel: float
     focal_rel_sigma: float
+    settled: bool
     focal_off: bool
     principal_off: bool
 
@@ -126,6 +139,7 @@ class IntrinsicsCheck:
             "sigma_px": {k: round(float(v), 3) for k, v in zip(names, self.sigma, strict=True)},
             "focal_rel": round(self.focal_rel, 5),
             "focal_rel_sigma": round(self.focal_rel_sigma, 5),
+            "settled": self.settled,
             "focal_off": self.focal_off,
             "principal_off": self.principal_off,
         }
@@ -255,32 +269,9 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + a * k + c * (k @ k)
 
 
-def check_intrinsics(
-    meas: Measurements,
-    world_T_cam: np.ndarray,
-    camera: CameraModel,
-    noise_scale: float = 1.0,
-    stated: tuple[float, float] = (0.0, 0.0),
-    settings: CheckSettings = CheckSettings(),
-) -> IntrinsicsCheck | None:
-    """The video's intrinsics against ``K``'s (module docstring), or None with too few frames.
-
-    Args:
-        meas: the inlier measurements (undistorted pixels, made with ``K``).
-        world_T_cam: (N, 4, 4) a pose per frame of ``meas`` (the smoothed ones).
-        camera: the camera file's model (its lens taken as stated).
-        noise_scale: the flight's pose noise scale (multiplies the sigmas; the
-            measurements' sigmas carry the pixel noise scale already).
-        stated: the uncertainty the user stated for the file's values: focal
-            length (relative) and principal point [px] (``--focal-sigma``,
-            ``--principal-sigma``); a change within it is no disagreement.
-    """
-    used = np.unique(meas.frame)
-    if len(used) < settings.min_frames:
-        return None
-    if len(used) > settings.max_frames:
-        used = used[np.linspace(0, len(used) - 1, settings.max_frames).round().astype(int)]
-        meas = meas.subset(np.isin(meas.frame, used))
+def _fit(meas, world_T_cam, camera, settings):
+    """Gauss-Newton from the poses and the file: (intrinsics (4,), the reduced system
+    S over intrinsics and sign offsets, the last step's largest relative move)."""
     R = np.array(world_T_cam[:, :3, :3], dtype=float)
     t = np.array(world_T_cam[:, :3, 3], dtype=float)
     k0 = np.array([camera.fx, camera.fy, camera.cx, camera.cy], dtype=float)
@@ -293,8 +284,9 @@ def check_intrinsics(
         + [settings.prior_principal_rel * camera.width] * 2
     )
     prior = np.concatenate([1.0 / k_sigma**2, np.repeat(1.0 / sig**2, 3)])
+    step_scale = np.array([k0[0], k0[1], camera.width, camera.width])
     raw, j_dist, W = _raw_side(meas, camera)
-    S = None
+    S, last_step = None, np.inf
     for _ in range(settings.iterations):
         world = meas.landmark_world[meas.landmark].copy()
         moved = which >= 0
@@ -310,18 +302,51 @@ def check_intrinsics(
         R = R @ _rodrigues(dp[:, :3])
         k = k + dg[:_N_INTRINSICS]
         offsets = offsets + dg[_N_INTRINSICS:].reshape(-1, 3)
+        last_step = float(np.max(np.abs(dg[:_N_INTRINSICS]) / step_scale))
+    return k, S, last_step
+
+
+def check_intrinsics(
+    meas: Measurements,
+    world_T_cam: np.ndarray,
+    camera: CameraModel,
+    noise_scale: float = 1.0,
+    stated: tuple[float, float] = (0.0, 0.0),
+    settings: CheckSettings = CheckSettings(),
+) -> IntrinsicsCheck | None:
+    """The video's intrinsics against the camera file's (module docstring), or None
+    with too few frames or a singular fit.
+
+    Args:
+        meas: the inlier measurements (undistorted pixels, made with ``camera``).
+        world_T_cam: (N, 4, 4) a pose per frame of ``meas`` (the smoothed ones).
+        camera: the camera file's model (its lens taken as stated).
+        noise_scale: the flight's pose noise scale (multiplies the sigmas; the
+            measurements' sigmas carry the pixel noise scale already).
+        stated: the uncertainty the user stated for the file's values: focal
+            length (relative) and principal point [px] (``--focal-sigma``,
+            ``--principal-sigma``); a change within it is no disagreement.
+    """
+    used = np.unique(meas.frame)
+    if len(used) < settings.min_frames:
+        return None
+    if len(used) > settings.max_frames:
+        used = used[np.linspace(0, len(used) - 1, settings.max_frames).round().astype(int)]
+        meas = meas.subset(np.isin(meas.frame, used))
+    k, S, last_step = _fit(meas, world_T_cam, camera, settings)
+    k0 = np.array([camera.fx, camera.fy, camera.cx, camera.cy], dtype=float)
     cov = np.linalg.inv(S) * noise_scale**2
     var = np.diag(cov)[:_N_INTRINSICS]
-    if not (np.all(np.isfinite(var)) and np.all(var > 0) and np.all(np.isfinite(k))):
-        return None  # too little seen to fit (a singular system): no check
-    sigma = np.sqrt(var)
-    delta = k - k0
-    rel = 0.5 * (delta[0] / k0[0] + delta[1] / k0[1])
     jr = np.array([0.5 / k0[0], 0.5 / k0[1]])
     rel_var = float(jr @ cov[:2, :2] @ jr)
+    if not (np.all(np.isfinite(var)) and np.all(var > 0) and np.all(np.isfinite(k))):
+        return None  # too little seen to fit (a singular system): no check
     if not rel_var > 0:
         return None
-    rel_sigma = float(np.sqrt(rel_var))
+    sigma, rel_sigma, delta = np.sqrt(var), float(np.sqrt(rel_var)), k - k0
+    rel = float(0.5 * (delta[0] / k0[0] + delta[1] / k0[1]))
+    settled = last_step < settings.settled_step and abs(rel) < settings.plausible_focal_rel
+    settled &= bool(np.all(np.abs(delta[2:]) < settings.plausible_principal_rel * camera.width))
     focal_tol = settings.z * np.sqrt(rel_sigma**2 + settings.focal_floor_rel**2 + stated[0] ** 2)
     focal_off = abs(rel) > max(settings.min_focal_rel, focal_tol)
     pp_sd = np.sqrt(sigma[2:] ** 2 + settings.principal_floor_px**2 + stated[1] ** 2)
@@ -330,10 +355,11 @@ def check_intrinsics(
         frames=len(used),
         delta=delta,
         sigma=sigma,
-        focal_rel=float(rel),
+        focal_rel=rel,
         focal_rel_sigma=rel_sigma,
-        focal_off=bool(focal_off),
-        principal_off=bool(pp.any()),
+        settled=bool(settled),
+        focal_off=bool(settled and focal_off),
+        principal_off=bool(settled and pp.any()),
     )
 
 

@@ -217,3 +217,23 @@ def test_a_principal_point_off_widens_the_sigmas_instead(estimated):
     assert np.mean(z.max(axis=1) > 3) < 0.05
     # the share: the same flight's sigmas with the right camera are 2-11x smaller
     assert np.all(np.median(m.sigma_xyz / right.sigma_xyz, axis=0) > 1.8)
+
+
+@pytest.mark.parametrize("fault", ["sign_1m", "diameters_10pct"])
+def test_a_map_that_does_not_fit_is_not_blamed_on_the_intrinsics(fault):
+    """A moved sign or wrong diameters pull the intrinsics' fit off (it would
+    read a focal length tens of per cent off): it claims nothing then."""
+    sign_map, camera, frames, _gt, _ = estimator_scene(
+        n_frames=60, sigma_px=0.2, seed=5, flat=False, duration_s=20
+    )
+    if fault == "sign_1m":
+        first = sign_map.signs[0]
+        moved = replace(first, center_m=np.asarray(first.center_m, float) + [1.0, 0, 0])
+        bad = replace(sign_map, signs=(moved, *sign_map.signs[1:]))
+    else:
+        bad = replace(
+            sign_map, signs=tuple(replace(g, diameter_m=g.diameter_m * 1.1) for g in sign_map.signs)
+        )
+    s = replace(EstimatorSettings(), methods=("pnp", "smoothed"))
+    r = estimate_trajectories(frames, bad, camera, s, False)
+    assert not any("the camera file's intrinsics" in w for w in r.warnings)
