@@ -110,6 +110,7 @@ from signpose.frontend.keypoint_noise import (  # noqa: F401
     keypoint_sigmas,
     mean_sigma,
     measure_parts,
+    unfitted_residuals_px,
 )
 from signpose.frontend.sign import (
     ALL_CODES,
@@ -1788,16 +1789,41 @@ def _try_hypothesis(region: _Region, hyp: _Hypothesis, whitener: np.ndarray) -> 
         bool(occ.covered_parts),
         max(occ.disturbance, refined.fill_deficit),
         erased,
-        measure_parts(
-            g,
-            refined.image_H_sign,
-            [_PART_NAMES[p] for p in refined.used_parts],
-            _PART_QUADS[refined.used_parts],
-            refined.centroids_px,
-            reading.black,
-            reading.white,
+        _with_unfitted(
+            measure_parts(
+                g,
+                refined.image_H_sign,
+                [_PART_NAMES[p] for p in refined.used_parts],
+                _PART_QUADS[refined.used_parts],
+                refined.centroids_px,
+                reading.black,
+                reading.white,
+            ),
+            refined,
+            kp_parts,
+            uv,
+            image_H_sign,
         ),
     )
+
+
+def _with_unfitted(
+    measured: PartMeasures,
+    refined: _Refined,
+    kp_parts: list[int],
+    uv: np.ndarray,
+    image_H_sign: np.ndarray,
+) -> PartMeasures:
+    """``measured`` with the two-part readings' unfitted residuals
+    (``keypoint_noise.unfitted_residuals_px``: the keypoints ``uv`` of
+    ``kp_parts`` under the final ``image_H_sign`` against the centroids)."""
+    use = refined.used_parts
+    if len(use) != 2:
+        return measured
+    used_uv = uv[[kp_parts.index(p) for p in use]]
+    names = [_PART_NAMES[p] for p in use]
+    r = unfitted_residuals_px(image_H_sign, names, _PART_QUADS[use], refined.centroids_px, used_uv)
+    return replace(measured, unfitted_px=r)
 
 
 def _reading_result(
@@ -1839,6 +1865,7 @@ def _reading_result(
             part_stray_pull_px=measured.stray_pull_px,
             part_fill=measured.fill,
             part_side_px=measured.side_px,
+            part_unfitted_px=measured.unfitted_px,
         )
     sigmas = keypoint_sigmas(inputs, names)
     return DecodeResult(

@@ -84,7 +84,7 @@ import enum
 import functools
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -113,7 +113,7 @@ from signpose.frontend.decoder import (
     _safe_disc_ellipse,
 )
 from signpose.frontend.homography import fit_homography, polygon_centroids
-from signpose.frontend.keypoint_noise import measure_parts
+from signpose.frontend.keypoint_noise import measure_parts, unfitted_residuals_px
 
 
 class VerifyOutcome(enum.StrEnum):
@@ -397,6 +397,9 @@ def _refit_and_check(
     # decoder measures it for an accepted reading (no part is covered here).
     names = [_PART_NAMES[p] for p in parts]
     measured = measure_parts(g, h_ref, names, _PART_QUADS[parts], cents, first.black, first.white)
+    measured = replace(
+        measured, unfitted_px=unfitted_residuals_px(h_ref, names, _PART_QUADS[parts], cents, uv)
+    )
     disturbance = max(occ.disturbance, deficit)
     result = _reading_result(
         code, parts, uv, h_ref, ellipse, first, rms, False, disturbance, (), measured
