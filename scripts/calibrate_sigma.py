@@ -187,6 +187,27 @@ def table(rows: list[dict], model: SigmaModel) -> dict[tuple[str, str], tuple]:
     return out
 
 
+def tails(rows: list[dict], model: SigmaModel) -> dict[str, tuple[int, float]]:
+    """Share of |error / sigma| > 3 over both axes (Gaussian: 0.27 %), on all
+    keypoints and on crossed readings only: "all" / "crossed" -> (n, share)."""
+    z: dict[str, list] = {"all": [], "crossed": []}
+    for r in rows:
+        su, sv = keypoint_sigmas(r["inputs"], [r["kp"]], model)[r["kp"]]
+        zz = (abs(r["err"][0] / su), abs(r["err"][1] / sv))
+        z["all"].extend(zz)
+        if r["inputs"].crossed:
+            z["crossed"].extend(zz)
+    return {k: (len(v) // 2, float(np.mean(np.asarray(v) > 3)) if v else 0.0) for k, v in z.items()}
+
+
+def _print_tails(rows: list[dict], model: SigmaModel) -> None:
+    t = tails(rows, model)
+    print(
+        "share of |z| > 3 (Gaussian 0.27 %): "
+        + ", ".join(f"{k} {100 * share:.2f} % of {n} keypoints" for k, (n, share) in t.items())
+    )
+
+
 def _design(rows: list[dict], kind: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Squared terms (2N, T), errors (2N,), group index (2N,) and axis (2N,) of one kind."""
     x, e, g, ax = [], [], [], []
@@ -333,11 +354,13 @@ def main(argv: list[str] | None = None) -> int:
         rows += collect_scenes(args.scenes, scene_seed, args.quiet)
     before = table(rows, SIGMA_MODEL)
     _print(before, "Current model (frontend/keypoint_noise.py)")
+    _print_tails(rows, SIGMA_MODEL)
     if args.check_only:
         return 0
     model = fit(rows, groups=not args.likelihood_only)
     after = table(rows, model)
     _print(after, "Fitted model")
+    _print_tails(rows, model)
     print("\n" + _model_source(model))
     if args.json is not None:
         out = {
