@@ -200,6 +200,7 @@ _DARK_FRAC = 0.45
 # the gap from the band's edge to its side samples [diameters], and how much
 # lighter (white fraction) both sides must be than the band.
 _BAR_BEYOND = (0.07, 0.14)
+_BAR_BEYOND_T = np.array(_BAR_BEYOND)
 _BAR_SIDE_GAP = 0.06
 _BAR_EDGE_STEP = 0.15
 # Rim run thresholds (white fractions).
@@ -297,6 +298,15 @@ _RING_POINTS = np.concatenate(
 )
 
 
+@functools.cache
+def _pair_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.triu_indices(n, 1)``: every pair (i < j) of n runs (cached: its
+    own cost was a tenth of ``dark_bands``')."""
+    ii, jj = np.triu_indices(n, 1)
+    ii.flags.writeable = jj.flags.writeable = False
+    return ii, jj
+
+
 def _median(x: list[float]) -> float:
     """np.median of a short list, without numpy's per-call overhead (most
     chords between two rim runs are dark: hundreds of calls per frame)."""
@@ -323,18 +333,16 @@ def _dark_runs(dark: list[bool], level: list[float]) -> list[tuple[float, float,
     lv = level[start:] + level[:start]
     step = 2 * math.pi / n
     out = []
-    b, acc = -1, 0.0
-    for k in range(n + 1):
-        on = k < n and d[k]
-        if on and b < 0:
-            b, acc = k, 0.0
-        if on:
-            acc += lv[k]
-        elif b >= 0:
-            centre = (start + b + (k - b - 1) / 2.0) * step
-            out.append((centre, (k - b) * step / 2.0, acc / (k - b)))
-            b = -1
-    return out
+    # Each run's ends by list.index (C speed); its levels summed in order.
+    d.append(False)
+    b = d.index(True)
+    while True:
+        e = d.index(False, b)
+        centre = (start + b + (e - b - 1) / 2.0) * step
+        out.append((centre, (e - b) * step / 2.0, sum(lv[b:e], 0.0) / (e - b)))
+        if True not in d[e:]:
+            return out
+        b = d.index(True, e)
 
 
 def rim_runs(
@@ -352,11 +360,11 @@ def rim_runs(
     shape = (len(_RING_RADII), _N_RING)
     level = frac.reshape(shape).mean(axis=0).tolist()
     # Where both rings are seen, the darker of the two decides.
-    worst = np.where(seen, frac, np.inf).reshape(shape).max(axis=0).tolist()
+    worst = np.where(seen, frac, np.inf).reshape(shape).max(axis=0)
     runs: list[tuple[float, float, float]] = []
     for t in _RUN_THRESHOLDS:
         # A run found again at a lower threshold adds only duplicate pairs.
-        dark = [v <= t for v in worst]
+        dark = (worst <= t).tolist()
         runs += [r for r in _dark_runs(dark, level) if r[1] <= _MAX_RUN_HALF and r not in runs]
     return runs
 
@@ -373,12 +381,10 @@ def _looks_like_a_bar(
     d = d / max(float(np.hypot(*d)), 1e-12)
     n = np.array([-d[1], d[0]])
     side = band.half_width + _BAR_SIDE_GAP
-    pts = []
-    for end, out in ((band.p0, -d), (band.p1, d)):
-        for t in _BAR_BEYOND:
-            q = end + t * out
-            pts += [q, q + side * n, q - side * n]
-    uv = _project(image_H_sign, np.asarray(pts))
+    # For each end and distance: the centre, then the two sides.
+    q = np.stack([band.p0, band.p1])[:, None] + _BAR_BEYOND_T[:, None] * np.stack([-d, d])[:, None]
+    pts = np.stack([q, q + side * n, q - side * n], axis=2).reshape(-1, 2)
+    uv = _project(image_H_sign, pts)
     h, w = gray.shape
     seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
     frac = ((_sample(gray, uv) - black) / contrast).reshape(-1, 3)
@@ -443,7 +449,7 @@ def bars_through(
     seen = seen.reshape(len(a), -1)
     lit = frac > _DARK_FRAC
     ok = ~(lit[:, :_N_CHORD] & keep).any(axis=1) & ~(lit & seen)[:, _N_CHORD:].any(axis=1)
-    out = []
+    bands, levels = [], []
     for k in np.flatnonzero(ok).tolist():
         # The run is the bar's footprint on the ring: an oblique chord's is
         # wider than the bar by 1 / cos(its angle to the radius).
@@ -451,61 +457,71 @@ def bars_through(
         half = 0.5 * math.sin(runs[k // len(targets)][1]) * slant
         if half < _SINGLE_MIN_HALF:
             continue
-        band = Band(a[k], b[k], half, in_front=False)
-        level_in = _median(frac[k, :_N_CHORD][keep[k]].tolist())
-        if _bar_beyond(gray, image_H_sign, band, black, contrast, level_in):
-            out.append(band)
-    return out
+        bands.append(Band(a[k], b[k], half, in_front=False))
+        levels.append(_median(frac[k, :_N_CHORD][keep[k]].tolist()))
+    if not bands:
+        return []
+    beyond = _bars_beyond(gray, image_H_sign, bands, black, contrast, levels)
+    return [band for band, yes in zip(bands, beyond, strict=True) if yes]
 
 
 # Distances beyond the rim [diameters] where a bar seen at one end only is
 # checked, and the share of its half width sampled inside it.
 _SINGLE_BEYOND = (0.06, 0.12, 0.18)
+_SINGLE_BEYOND_T = np.array(_SINGLE_BEYOND)
 _SINGLE_BODY = 0.5
 # Side points closer to the centre than this [diameters] lie on the disc.
 _OFF_DISC = 0.53
 
 
-def _bar_beyond(
+def _bars_beyond(
     gray: np.ndarray,
     image_H_sign: np.ndarray,
-    band: Band,
+    bands: list[Band],
     black: float,
     contrast: float,
-    level_in: float,
-) -> bool:
-    """Beyond ``band.p0`` the bar runs on along the chord: at each distance its
-    centre and both halves are dark and both sides lighter (the nearest seen;
-    farther ones outside the crop do not count), and its gray level there is
-    the chord's inside the disc, ``level_in`` (white fraction): one object in
-    front. A bar behind shows its own level outside and the print's inside
-    (a pylon's lattice behind a sign, darker or lighter than the print)."""
-    d = band.p1 - band.p0
-    d = d / max(float(np.hypot(*d)), 1e-12)
-    n = np.array([-d[1], d[0]])
-    side = band.half_width + _BAR_SIDE_GAP
-    body = _SINGLE_BODY * band.half_width
-    offsets = (0.0, body, -body, side, -side)
-    pts = [band.p0 - t * d + o * n for t in _SINGLE_BEYOND for o in offsets]
-    uv = _project(image_H_sign, np.asarray(pts))
+    levels_in: list[float],
+) -> list[bool]:
+    """For each band: beyond ``band.p0`` the bar runs on along the chord: at
+    each distance its centre and both halves are dark and both sides lighter
+    (the nearest seen; farther ones outside the crop do not count), and its
+    gray level there is the chord's inside the disc, its ``levels_in``
+    (white fraction): one object in front. A bar behind shows its own level
+    outside and the print's inside (a pylon's lattice behind a sign, darker
+    or lighter than the print). Every band's samples in one projection and
+    one remap, as each band alone would take them."""
+    p0 = np.stack([bd.p0 for bd in bands])
+    d = np.stack([bd.p1 for bd in bands]) - p0
+    d = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    half = np.array([bd.half_width for bd in bands])
+    side, body = half + _BAR_SIDE_GAP, _SINGLE_BODY * half
+    offsets = np.stack([np.zeros(len(bands)), body, -body, side, -side], axis=1)  # (K, 5)
+    # (K, distances, offsets, 2): p0 - t d + o n.
+    pts = (p0[:, None, :] - _SINGLE_BEYOND_T[None, :, None] * d[:, None, :])[:, :, None, :] + (
+        offsets[:, None, :, None] * n[:, None, None, :]
+    )
+    uv = _project(image_H_sign, pts.reshape(-1, 2))
     h, w = gray.shape
     seen = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] <= h - 1)
-    seen = seen.reshape(-1, 5).all(axis=1)
+    seen = seen.reshape(pts.shape[:3]).all(axis=2)
     # A side point on the disc (an oblique bar's acute side near the rim)
     # shows the print's black, not the bar's surroundings: left out.
-    pts = np.asarray(pts).reshape(-1, 5, 2)
-    off_disc = np.hypot(pts[..., 0], pts[..., 1])[:, 3:] > _OFF_DISC
-    frac = ((_sample(gray, uv) - black) / contrast).reshape(-1, 5)
-    inner = frac[:, :3].max(axis=1)
-    lower = np.where(off_disc, frac[:, 3:], np.inf).min(axis=1)
-    evidence = seen & off_disc.any(axis=1)
-    if not evidence[0]:
-        return False
-    edged = (inner <= _DARK_FRAC) & (lower - inner >= _BAR_EDGE_STEP)
-    if not (edged | ~evidence).all():
-        return False
-    level_out = _median(frac[evidence, :3].ravel().tolist())
-    return abs(level_out - level_in) < _BEHIND_GAP
+    off_disc = np.hypot(pts[..., 0], pts[..., 1])[..., 3:] > _OFF_DISC
+    frac = ((_sample(gray, uv) - black) / contrast).reshape(pts.shape[:3])
+    inner = frac[..., :3].max(axis=2)
+    lower = np.where(off_disc, frac[..., 3:], np.inf).min(axis=2)
+    evidence = seen & off_disc.any(axis=2)
+    edged = ((inner <= _DARK_FRAC) & (lower - inner >= _BAR_EDGE_STEP)) | ~evidence
+    passed = (evidence[:, 0] & edged.all(axis=1)).tolist()
+    out = []
+    for k, level_in in enumerate(levels_in):
+        if not passed[k]:
+            out.append(False)
+            continue
+        level_out = _median(frac[k][evidence[k], :3].ravel().tolist())
+        out.append(abs(level_out - level_in) < _BEHIND_GAP)
+    return out
 
 
 def dark_bands(
@@ -543,7 +559,7 @@ def dark_bands(
     runs = rim_runs(gray, image_H_sign, black, white) if runs is None else runs
     if len(runs) < 2:
         return []
-    ii, jj = np.triu_indices(len(runs), 1)
+    ii, jj = _pair_indices(len(runs))
     angles = np.array([r[0] for r in runs])
     rim = 0.5 * np.stack([np.cos(angles), np.sin(angles)], axis=1)
     # (pairs, _N_CHORD, 2) chord points, all sampled in one call.
@@ -555,30 +571,30 @@ def dark_bands(
     bands = []
     centres = white_centres.tolist()
     rim_l = rim.tolist()
+    chord_l, keep_l, ii_l, jj_l = chord.tolist(), keep.tolist(), ii.tolist(), jj.tolist()
     for k in np.flatnonzero(dark).tolist():
-        i, j = int(ii[k]), int(jj[k])
-        inner = chord[k][keep[k]]
+        i, j = ii_l[k], jj_l[k]
+        inner = [c for c, kept in zip(chord_l[k], keep_l[k], strict=True) if kept]
         half = 0.5 * math.sin(min(runs[i][1], runs[j][1]))
         # Band.distance in plain floats (this loop runs over every dark chord).
         (x0, y0), (x1, y1) = rim_l[i], rim_l[j]
         norm = max(math.hypot(x1 - x0, y1 - y0), 1e-12)
         nx, ny = -(y1 - y0) / norm, (x1 - x0) / norm
         over_white = any(abs((cx - x0) * nx + (cy - y0) * ny) < _ON_PART for cx, cy in centres)
-        band = Band(rim[i], rim[j], half)
-        level_in, level_out = _median(inner.tolist()), 0.5 * (runs[i][2] + runs[j][2])
+        level_in, level_out = _median(inner), 0.5 * (runs[i][2] + runs[j][2])
         distinct = level_in > _BAR_ABOVE_BLACK and abs(level_in - level_out) < _BAR_LEVEL_MATCH
         # A bar as black as the print looks the same in front and behind: it
         # counts when it is wide enough to hide a whole coded slot and shows a
         # bar's straight, parallel edges outside the rim.
-        wide = _HIDING_HALF_WIDTH <= band.half_width <= _MAX_BAR_HALF_WIDTH
+        wide = _HIDING_HALF_WIDTH <= half <= _MAX_BAR_HALF_WIDTH
         # A bar lighter outside the rim than its chord inside shows the disc's
         # black over it: it lies behind.
         if not (over_white or distinct) and wide:
             wide = level_out - level_in < _BEHIND_GAP and _looks_like_a_bar(
-                gray, image_H_sign, band, black, contrast
+                gray, image_H_sign, Band(rim[i], rim[j], half), black, contrast
             )
         if over_white or distinct or wide:
-            bands.append(Band(band.p0, band.p1, half, in_front=over_white or distinct))
+            bands.append(Band(rim[i], rim[j], half, in_front=over_white or distinct))
     return bands
 
 
@@ -718,6 +734,8 @@ _BAND_RADIUS = 0.45
 _N_BAND = 96
 _BAND_ANGLES = np.linspace(0.0, 2 * math.pi, _N_BAND, endpoint=False)
 _BAND_POINTS = _BAND_RADIUS * np.stack([np.cos(_BAND_ANGLES), np.sin(_BAND_ANGLES)], axis=1)
+# The band's points, then the rim's at the same angles.
+_BAND_AND_RIM = np.concatenate([_BAND_POINTS, _BAND_POINTS * (0.5 / _BAND_RADIUS)])
 # Least distance [px] of the rim band from the rim for its own median to be
 # the face's black (psf, JPEG and blur bring the background closer).
 _BLEED_PX = 2.5
@@ -766,27 +784,31 @@ def off_black_bands(
     if len(targets) == 0:
         return []
     contrast = max(white - black, 1e-6)
-    uv = _project(image_H_sign, _BAND_POINTS)
+    # The band and the rim below it in one projection.
+    both = _project(image_H_sign, _BAND_AND_RIM)
+    uv, rim_d = both[:_N_BAND], both[_N_BAND:] - both[:_N_BAND]
     frac = (_sample(gray, uv) - black) / contrast
     # Levels against the band's own median where the background cannot bleed
     # into it (the face's black there, the reading's is a low quantile);
     # against the reading's black on a small sign, where it does.
-    rim_uv = _project(image_H_sign, _BAND_POINTS * (0.5 / _BAND_RADIUS))
-    if float(np.hypot(*(rim_uv - uv).T).min()) >= _BLEED_PX:
-        base = float(np.median(frac))
+    if float(np.hypot(rim_d[:, 0], rim_d[:, 1]).min()) >= _BLEED_PX:
+        base = _median(frac.tolist())
         frac = frac - base
         black = black + base * contrast
     # The noise from neighbouring samples' differences (an arc barely moves
-    # them), and runs found on a 3-sample circular mean.
-    noise = 1.4826 * float(np.median(np.abs(frac - np.roll(frac, 1)))) / math.sqrt(2.0)
+    # them), and runs found on a 3-sample circular mean (np.roll by slices:
+    # a third of its cost).
+    before = np.concatenate((frac[-1:], frac[:-1]))
+    after = np.concatenate((frac[1:], frac[:1]))
+    noise = 1.4826 * _median(np.abs(frac - before).tolist()) / math.sqrt(2.0)
     thr = max(_OFF_BLACK_MIN, _OFF_BLACK_SIGMAS * noise)
-    dev_l = ((frac + np.roll(frac, 1) + np.roll(frac, -1)) / 3.0).tolist()
+    dev_l = ((frac + before + after) / 3.0).tolist()
     out: list[Band] = []
     for sign in (1.0, -1.0):
         runs = _signed_runs(dev_l, sign, thr)
         if len(runs) < 2:
             continue
-        ii, jj = np.triu_indices(len(runs), 1)
+        ii, jj = _pair_indices(len(runs))
         ang = np.array([r[0] for r in runs])
         rim = 0.5 * np.stack([np.cos(ang), np.sin(ang)], axis=1)
         pts = rim[ii, None] + _CHORD_T[None, :, None] * (rim[jj] - rim[ii])[:, None]
