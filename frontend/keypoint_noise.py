@@ -621,7 +621,8 @@ def _fill(gray, corners, grown, black, white) -> tuple[np.ndarray, np.ndarray]:
     d = nxt - corners
     side = np.sqrt((d * d).sum(axis=2).max(axis=1))
     h, w = gray.shape
-    (u0, v0), (u1, v1) = grown.reshape(-1, 2).min(axis=0), grown.reshape(-1, 2).max(axis=0)
+    flat = grown.reshape(-1, 2)
+    (u0, v0), (u1, v1) = flat.min(axis=0).tolist(), flat.max(axis=0).tolist()
     if not (u0 >= 0 and v0 >= 0 and u1 <= w - 1 and v1 <= h - 1):
         return np.full(n, np.nan), side
     x0, y0, x1, y1 = int(u0), int(v0), int(math.ceil(u1)) + 1, int(math.ceil(v1)) + 1
@@ -667,8 +668,9 @@ _END_EPS = 1e-3  # [diameters]
 @functools.cache
 def _end_geometry(quads_key: tuple[float, ...]) -> tuple:
     """The sign-plane profile feet (P, 4, len(_END_T), 2) on each side of each
-    part, the sides' outward unit normals (P, 4, 2) and each side's distance
-    to the opposite side (P, 4) [diameters]."""
+    part, the sides' outward unit normals (P, 4, 2), each side's distance
+    to the opposite side (P, 4) [diameters], and the parts' centres then
+    their steps of ``_END_EPS`` along sides 0 and 1's normals (3P, 2)."""
     quads = np.array(quads_key).reshape(-1, 4, 2)
     nxt = np.roll(quads, -1, axis=1)
     d = nxt - quads
@@ -677,7 +679,10 @@ def _end_geometry(quads_key: tuple[float, ...]) -> tuple:
     out = ((quads + nxt) / 2 - quads.mean(axis=1, keepdims=True)) * n
     n = np.where(out.sum(axis=-1, keepdims=True) >= 0, n, -n)
     feet = quads[:, :, None, :] + _END_T[None, None, :, None] * d[:, :, None, :]
-    return feet, n, np.roll(length, -1, axis=1)
+    # Each part's centre and a small step along sides 0 and 1's normals.
+    centre = quads.mean(axis=1)
+    axes = centre[:, None, :] + _END_EPS * n[:, :2]
+    return feet, n, np.roll(length, -1, axis=1), np.concatenate([centre, axes.reshape(-1, 2)])
 
 
 def _end_cuts(gray, h, quads, scale: float, black: float, white: float) -> np.ndarray:
@@ -696,7 +701,7 @@ def _end_cuts(gray, h, quads, scale: float, black: float, white: float) -> np.nd
     ``delta / 2`` along their normal, of either sign (the frame cannot tell
     which end was cut)."""
     quads = np.asarray(quads, dtype=float)
-    feet, n, across = _end_geometry(tuple(quads.ravel().tolist()))
+    feet, n, across, centre_axes = _end_geometry(tuple(quads.ravel().tolist()))
     px = 1.0 / max(scale, 1e-9)
     t_in = np.minimum(_END_IN_PX * px, _END_IN_MAX * across)  # (P, 4)
     step = (t_in + _END_OUT_PX * px) / _END_SAMPLES
@@ -704,9 +709,7 @@ def _end_cuts(gray, h, quads, scale: float, black: float, white: float) -> np.nd
     pts = feet[:, :, :, None, :] + t[:, :, None, :, None] * n[:, :, None, None, :]
     # With them, each part's centre and a small step along sides 0 and 1's
     # normals: the image of a shift along them, in one projection.
-    centre = quads.mean(axis=1)
-    axes = centre[:, None, :] + _END_EPS * n[:, :2]
-    uv = _project(h, np.concatenate([pts.reshape(-1, 2), centre, axes.reshape(-1, 2)]))
+    uv = _project(h, np.concatenate([pts.reshape(-1, 2), centre_axes]))
     k, p = pts[..., 0].size, len(quads)
     g = _sample(gray, uv[:k], replicate=True).reshape(pts.shape[:-1])
     frac = np.clip((g - black) / max(white - black, 1e-6), 0.0, 1.0)

@@ -182,7 +182,9 @@ the crops rendered once and decoded by each variant; seeds 2017 / 99 / 7 /
 from __future__ import annotations
 
 import functools
+import itertools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import cv2
@@ -307,7 +309,7 @@ def _pair_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
     return ii, jj
 
 
-def _median(x: list[float]) -> float:
+def _median(x: Iterable[float]) -> float:
     """np.median of a short list, without numpy's per-call overhead (most
     chords between two rim runs are dark: hundreds of calls per frame)."""
     x = sorted(x)
@@ -571,17 +573,23 @@ def dark_bands(
     bands = []
     centres = white_centres.tolist()
     rim_l = rim.tolist()
-    chord_l, keep_l, ii_l, jj_l = chord.tolist(), keep.tolist(), ii.tolist(), jj.tolist()
-    for k in np.flatnonzero(dark).tolist():
-        i, j = ii_l[k], jj_l[k]
-        inner = [c for c, kept in zip(chord_l[k], keep_l[k], strict=True) if kept]
+    dark_k = np.flatnonzero(dark)
+    rows = zip(
+        ii[dark_k].tolist(),
+        jj[dark_k].tolist(),
+        chord[dark_k].tolist(),
+        keep[dark_k].tolist(),
+        strict=True,
+    )
+    for i, j, chord_k, keep_k in rows:
         half = 0.5 * math.sin(min(runs[i][1], runs[j][1]))
         # Band.distance in plain floats (this loop runs over every dark chord).
         (x0, y0), (x1, y1) = rim_l[i], rim_l[j]
         norm = max(math.hypot(x1 - x0, y1 - y0), 1e-12)
         nx, ny = -(y1 - y0) / norm, (x1 - x0) / norm
         over_white = any(abs((cx - x0) * nx + (cy - y0) * ny) < _ON_PART for cx, cy in centres)
-        level_in, level_out = _median(inner), 0.5 * (runs[i][2] + runs[j][2])
+        level_in = _median(itertools.compress(chord_k, keep_k))
+        level_out = 0.5 * (runs[i][2] + runs[j][2])
         distinct = level_in > _BAR_ABOVE_BLACK and abs(level_in - level_out) < _BAR_LEVEL_MATCH
         # A bar as black as the print looks the same in front and behind: it
         # counts when it is wide enough to hide a whole coded slot and shows a
@@ -637,19 +645,23 @@ def interior_min_white(
             rectangle): sampled on their centre line only.
     """
     thin = np.zeros(len(quads), bool) if thin is None else thin
-    pts = [
-        (_THIN_WEIGHTS if t else _GRID_WEIGHTS) @ q
-        for q, t in zip(quads, thin.tolist(), strict=True)
-    ]
-    counts = [len(p) for p in pts]
-    frac = (_sample(gray, _project(image_H_sign, np.concatenate(pts))) - black) / max(
-        white - black, 1e-6
+    pts, starts = _interior_points(
+        tuple(np.asarray(quads, float).ravel().tolist()), tuple(thin.tolist())
     )
-    out, start = [], 0
-    for n in counts:
-        out.append(float(frac[start : start + n].min()))
-        start += n
-    return np.array(out)
+    frac = (_sample(gray, _project(image_H_sign, pts)) - black) / max(white - black, 1e-6)
+    return np.minimum.reduceat(frac, starts)
+
+
+@functools.lru_cache(maxsize=256)
+def _interior_points(quads_key: tuple[float, ...], thin: tuple[bool, ...]) -> tuple:
+    """``interior_min_white``'s sample points (N, 2) [diameters] and the index
+    of each part's first (cached: the decoder's quads are a few sets of its parts)."""
+    quads = np.array(quads_key, float).reshape(-1, 4, 2)
+    pts = [(_THIN_WEIGHTS if t else _GRID_WEIGHTS) @ q for q, t in zip(quads, thin, strict=True)]
+    out = np.concatenate(pts)
+    starts = np.cumsum([0] + [len(p) for p in pts[:-1]])
+    out.flags.writeable = starts.flags.writeable = False
+    return out, starts
 
 
 # A part partly seen: its inside on a finer grid, and how many of those
@@ -1116,6 +1128,19 @@ _CUT_WEIGHTS, _CUT_LINES = _cut_geometry()
 _NEXT, _PREV, _OPPOSITE = [1, 2, 3, 0], [3, 0, 1, 2], [2, 3, 0, 1]
 
 
+@functools.lru_cache(maxsize=64)
+def _corner_edges(quads_key: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+    """(P, 4, 2) quads, each corner's sides e1 (toward the next corner) and
+    e2 (toward the one before), and their (P, 4) lengths (cached: the
+    decoder's white parts are a few sets)."""
+    q = np.array(quads_key, float).reshape(-1, 4, 2)
+    e1, e2 = q[:, _NEXT] - q, q[:, _PREV] - q
+    out = (q, e1, e2, np.hypot(e1[..., 0], e1[..., 1]), np.hypot(e2[..., 0], e2[..., 1]))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
 def cut_corners(
     gray: np.ndarray,
     image_H_sign: np.ndarray,
@@ -1150,11 +1175,10 @@ def cut_corners(
     # toward the next corner, e2 toward the one before): blur rounds every
     # corner alike there, a cut one is dark.
     # (np.roll is ten times slower than these index lists on 4 corners.)
-    q = np.asarray(white_quads, float)
-    e1, e2 = q[:, _NEXT] - q, q[:, _PREV] - q  # (P, 4, 2)
+    q, e1, e2, len1, len2 = _corner_edges(tuple(np.asarray(white_quads, float).ravel().tolist()))
     lo, hi = _CUT_PROBE_RANGE
-    f1 = np.minimum(np.maximum(_CUT_PROBE_PX * px / np.hypot(e1[..., 0], e1[..., 1]), lo), hi)
-    f2 = np.minimum(np.maximum(_CUT_PROBE_PX * px / np.hypot(e2[..., 0], e2[..., 1]), lo), hi)
+    f1 = np.minimum(np.maximum(_CUT_PROBE_PX * px / len1, lo), hi)
+    f2 = np.minimum(np.maximum(_CUT_PROBE_PX * px / len2, lo), hi)
     probes = q + f1[..., None] * e1 + f2[..., None] * e2
     level = (_sample(gray, _project(image_H_sign, probes.reshape(-1, 2))) - black) / contrast
     level = level.reshape(len(q), 4)
