@@ -703,6 +703,8 @@ def _face_is_sign_like(frac: list[float], hidden: frozenset[int] = frozenset()) 
     """
 
     def seen(part: slice) -> list[float]:
+        if not hidden:
+            return frac[part]
         return [frac[i] for i in range(*part.indices(len(frac))) if i not in hidden]
 
     blacks, around = sorted(seen(_S_BLACK)), sorted(seen(_S_AROUND))

@@ -99,6 +99,7 @@ perspective puts the keypoints on the centroids the residual is about 0.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -700,26 +701,39 @@ def _end_cuts(gray, h, quads, scale: float, black: float, white: float) -> np.nd
     opposite sides short by ``delta`` together predict a shift of
     ``delta / 2`` along their normal, of either sign (the frame cannot tell
     which end was cut)."""
-    quads = np.asarray(quads, dtype=float)
+    prof = _end_profiles(np.asarray(quads, dtype=float), scale)
+    k = len(prof[0])
+    # With them, each part's centre and a small step along sides 0 and 1's
+    # normals: the image of a shift along them, in one projection.
+    uv = _project(h, np.concatenate([prof[0], prof[1]]))
+    return _end_shifts(prof, _sample(gray, uv[:k], replicate=True), uv[k:], black, white)
+
+
+def _end_profiles(quads: np.ndarray, scale: float) -> tuple:
+    """``_end_cuts``' profile points (K, 2) and the parts' centres and steps
+    (3P, 2) [diameters], then what ``_end_shifts`` needs of them."""
     feet, n, across, centre_axes = _end_geometry(tuple(quads.ravel().tolist()))
     px = 1.0 / max(scale, 1e-9)
     t_in = np.minimum(_END_IN_PX * px, _END_IN_MAX * across)  # (P, 4)
     step = (t_in + _END_OUT_PX * px) / _END_SAMPLES
     t = -t_in[..., None] + step[..., None] * (np.arange(_END_SAMPLES) + 0.5)  # (P, 4, S)
     pts = feet[:, :, :, None, :] + t[:, :, None, :, None] * n[:, :, None, None, :]
-    # With them, each part's centre and a small step along sides 0 and 1's
-    # normals: the image of a shift along them, in one projection.
-    uv = _project(h, np.concatenate([pts.reshape(-1, 2), centre_axes]))
-    k, p = pts[..., 0].size, len(quads)
-    g = _sample(gray, uv[:k], replicate=True).reshape(pts.shape[:-1])
-    frac = np.clip((g - black) / max(white - black, 1e-6), 0.0, 1.0)
+    return pts.reshape(-1, 2), centre_axes, pts.shape[:-1], t_in, step, px
+
+
+def _end_shifts(prof: tuple, g: np.ndarray, centre_axes_px: np.ndarray, black, white):
+    """``_end_cuts`` from the gray levels ``g`` (K,) at the profile points of
+    ``prof`` (``_end_profiles``) and the image of its centres and steps [px]."""
+    _, _, shape, t_in, step, px = prof
+    p = shape[0]
+    frac = np.clip((g.reshape(shape) - black) / max(white - black, 1e-6), 0.0, 1.0)
     sums = frac.sum(axis=-1)  # (P, 4, 3): the median of three, without np.median
     mid = sums.sum(axis=-1) - sums.max(axis=-1) - sums.min(axis=-1)
     reach = mid * step - t_in  # (P, 4) [diameters]
     # (P, 2): sides 0 and 2, 1 and 3.
     short = np.maximum(-(reach[:, :2] + reach[:, 2:]) - _END_SLACK_PX * px, 0.0)
     # The image of half the shortfall along each side's normal [px].
-    unit = (uv[k + p :].reshape(p, 2, 2) - uv[k : k + p, None, :]) / _END_EPS
+    unit = (centre_axes_px[p:].reshape(p, 2, 2) - centre_axes_px[:p, None, :]) / _END_EPS
     shift = (0.5 * short)[..., None] * unit
     return np.sqrt((shift**2).sum(axis=1))
 
@@ -784,10 +798,18 @@ def measure_parts(
     window_grow = min(_WINDOW_PX / max(scale, 1e-9), _WINDOW_MAX)
     band_grow = min(_BAND_PX / max(scale, 1e-9), _STRAY_MAX)
     sampled = [inside_xy, base + stray_grow * normals, _RINGS_XY, base + band_grow * normals]
-    sizes = [len(x) for x in sampled]
-    k0, k1, k2, k3 = np.cumsum(sizes).tolist()
-    uv = _project(h, np.concatenate([*sampled, corners, corners + window_grow * growth]))
-    g = _sample(gray, uv[:k3], replicate=True)
+    # An exact fit (four parts or fewer) also needs the ends' profiles
+    # (``_end_cuts``), projected and sampled with the rest.
+    ends = _end_profiles(quads, scale) if n <= 4 else None
+    k0, k1, k2, k3, k4 = itertools.accumulate(
+        [len(x) for x in sampled] + [0 if ends is None else len(ends[0])]
+    )
+    unsampled = [corners, corners + window_grow * growth] + ([] if ends is None else [ends[1]])
+    sampled += [] if ends is None else [ends[0]]
+    uv = _project(h, np.concatenate(sampled + unsampled))
+    g = _sample(gray, uv[:k4], replicate=True)
+    g_ends, g = g[k3:], g[:k3]
+    k5 = k4 + 8 * n
     rows, cols = gray.shape
     u, v = uv[k0:k3, 0], uv[k0:k3, 1]
     # Outline and ring samples off the image do not count (NaN).
@@ -807,10 +829,14 @@ def measure_parts(
     if n <= 4:
         # An exact fit follows each centroid: the cut ends join the inside
         # pull (both are white missing from the part), keeping its sign.
-        cut = _END_GAIN * _end_cuts(gray, h, quads, scale, black, white)
+        cut = _END_GAIN * _end_shifts(ends, g_ends, uv[k5:], black, white)
         pull = np.where(pull < 0, -1.0, 1.0) * np.hypot(pull, cut)
     fill, side = _fill(
-        gray, uv[k3 : k3 + 4 * n].reshape(n, 4, 2), uv[k3 + 4 * n :].reshape(n, 4, 2), black, white
+        gray,
+        uv[k4 : k4 + 4 * n].reshape(n, 4, 2),
+        uv[k4 + 4 * n : k5].reshape(n, 4, 2),
+        black,
+        white,
     )
     return PartMeasures(
         residual_px=part_residuals_px(h, names, quads, centroids_px),
