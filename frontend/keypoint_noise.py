@@ -583,6 +583,25 @@ def _stray(frac: np.ndarray, uv: np.ndarray, noise: float = 0.0) -> tuple[np.nda
     centre, per sample), its square less what ``noise`` (a white fraction's
     sigma on black, clipped at 0 as ``frac`` is: variance 0.34 noise^2 per
     sample) alone gives it on each axis."""
+    return _stray_rows(frac, uv, noise, len(frac))
+
+
+def _stray_and_band(
+    stray_frac: np.ndarray, band_frac: np.ndarray, uv: np.ndarray, noise: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``_stray`` of the stray samples (P, S) with ``noise`` plus ``_stray``
+    of the band samples (P, S) without, in one pass (the rows are
+    independent: the same numbers as two calls): (P,) the strays' mean and
+    (P, 2) the sum of the two pulls [px]. ``uv``: (2P, S, 2) both sets'
+    points [px]."""
+    p = len(stray_frac)
+    mean, pull = _stray_rows(np.concatenate([stray_frac, band_frac]), uv, noise, p)
+    return mean, pull[:p] + pull[p:]
+
+
+def _stray_rows(frac: np.ndarray, uv: np.ndarray, noise: float, p: int) -> tuple:
+    """``_stray`` of (R, S) rows, the first ``p`` of them with ``noise``:
+    (p,) their means and (R, 2) every row's pull."""
     ok = np.isfinite(frac)
     count = ok.sum(axis=1)
     w = np.where(ok, frac, 0.0)
@@ -591,9 +610,10 @@ def _stray(frac: np.ndarray, uv: np.ndarray, noise: float = 0.0) -> tuple[np.nda
     n = np.maximum(count, 1)[:, None]
     pull = moment / n
     if noise > 0:
-        own = 0.34 * noise**2 * (ok[..., None] * d * d).sum(axis=1) / n**2
-        pull = np.sign(pull) * np.sqrt(np.maximum(pull * pull - own, 0.0))
-    return np.where(count > 0, w.sum(axis=1) / n[:, 0], 0.0), pull
+        own = 0.34 * noise**2 * (ok[:p, :, None] * d[:p] * d[:p]).sum(axis=1) / n[:p] ** 2
+        head = pull[:p]
+        pull[:p] = np.sign(head) * np.sqrt(np.maximum(head * head - own, 0.0))
+    return np.where(count[:p] > 0, w[:p].sum(axis=1) / n[:p, 0], 0.0), pull
 
 
 def _inside(frac: np.ndarray, uv: np.ndarray, masks: np.ndarray, thin: np.ndarray) -> tuple:
@@ -817,15 +837,12 @@ def measure_parts(
     frac = (g - black) / max(white - black, 1e-6)
     inside, pull = _inside(frac[:k0].reshape(n, -1), uv[:k0].reshape(n, -1, 2), masks, thin)
     noise = _noise(g[k1:k2], white - black)
-    stray, stray_pull = _stray(
+    stray, stray_pull = _stray_and_band(
         np.clip(frac[k0:k1], 0.0, 1.0).reshape(n, -1),
-        uv[k0:k1].reshape(n, -1, 2),
+        np.clip(frac[k2:k3], -1.0, 0.0).reshape(n, -1),
+        np.concatenate([uv[k0:k1], uv[k2:k3]]).reshape(2 * n, -1, 2),
         _STRAY_NOISE * noise if math.isfinite(noise) else 0.0,
     )
-    _, band_pull = _stray(
-        np.clip(frac[k2:k3], -1.0, 0.0).reshape(n, -1), uv[k2:k3].reshape(n, -1, 2)
-    )
-    stray_pull = stray_pull + band_pull
     if n <= 4:
         # An exact fit follows each centroid: the cut ends join the inside
         # pull (both are white missing from the part), keeping its sign.

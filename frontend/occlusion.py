@@ -827,16 +827,17 @@ def off_black_bands(
         keep = np.hypot(pts[..., 0], pts[..., 1]) < _OFF_BLACK_CHORD_INNER
         chord = (_sample(gray, _project(image_H_sign, pts.reshape(-1, 2))) - black) / contrast
         chord = chord.reshape(keep.shape)
-        for k in range(len(ii)):
+        # Every chord point shows the object: off black on the same side,
+        # and no farther from the arcs' level than they are from black (all
+        # pairs at once).
+        arc_level = np.array([r[2] for r in runs])
+        level = 0.5 * (arc_level[ii] + arc_level[jj])
+        on = (sign * chord >= 0.5 * thr) & (
+            np.abs(chord - level[:, None]) <= np.abs(level)[:, None]
+        )
+        shows = keep.any(axis=1) & (on | ~keep).all(axis=1)
+        for k in np.flatnonzero(shows).tolist():
             i, j = int(ii[k]), int(jj[k])
-            if not keep[k].any():
-                continue
-            level = 0.5 * (runs[i][2] + runs[j][2])
-            # Every chord point shows the object: off black on the same side,
-            # and no farther from the arcs' level than they are from black.
-            on = chord[k][keep[k]]
-            if not ((sign * on >= 0.5 * thr).all() and (np.abs(on - level) <= abs(level)).all()):
-                continue
             # Each arc is the bar's footprint on the band: an oblique chord's
             # is wider than the bar by 1 / cos(its angle to the radius).
             u = (rim[j] - rim[i]) / max(float(np.hypot(*(rim[j] - rim[i]))), 1e-12)
@@ -1182,11 +1183,17 @@ def cut_corners(
     probes = q + f1[..., None] * e1 + f2[..., None] * e2
     level = (_sample(gray, _project(image_H_sign, probes.reshape(-1, 2))) - black) / contrast
     level = level.reshape(len(q), 4)
-    # The other three corners: the darkest of them, and the two next to it.
-    others = np.minimum(level[:, _NEXT], level[:, _PREV])
-    brighter = np.minimum(others, level[:, _OPPOSITE])
-    cut = (level <= _CUT_DARK) & (others - level >= _CUT_STEP) & (brighter >= _CUT_LIT)
-    if not cut.any():
+    # The other three corners: the darkest of them, and the two next to it
+    # (plain floats: 4 corners of a few parts, numpy's per-call cost
+    # dominated; levels are finite, so min is np.minimum).
+    cut = []
+    for p, row in enumerate(level.tolist()):
+        for k in range(4):
+            others = min(row[_NEXT[k]], row[_PREV[k]])
+            brighter = min(others, row[_OPPOSITE[k]])
+            if row[k] <= _CUT_DARK and others - row[k] >= _CUT_STEP and brighter >= _CUT_LIT:
+                cut.append((p, k))
+    if not cut:
         return []  # most readings: every part's corners alike
     pts = np.einsum("gk,pkj->pgj", _CUT_WEIGHTS, white_quads)  # (P, G, 2)
     frac = (_sample(gray, _project(image_H_sign, pts.reshape(-1, 2))) - black) / contrast
@@ -1196,7 +1203,7 @@ def cut_corners(
     lit_pts = pts.reshape(-1, 2)[frac.ravel() >= _CUT_WHITE]
     slot_quads = _slot_quads_at(targets)
     out: list[Band] = []
-    for p, k in zip(*np.nonzero(cut), strict=True):
+    for p, k in cut:
         f, corner = frac[p], q[p, k]
         # The cut line through corner + a e1 and corner + b e2; its unit
         # normal toward the corner.
