@@ -848,13 +848,8 @@ def measure_parts(
         # pull (both are white missing from the part), keeping its sign.
         cut = _END_GAIN * _end_shifts(ends, g_ends, uv[k5:], black, white)
         pull = np.where(pull < 0, -1.0, 1.0) * np.hypot(pull, cut)
-    fill, side = _fill(
-        gray,
-        uv[k4 : k4 + 4 * n].reshape(n, 4, 2),
-        uv[k4 + 4 * n : k5].reshape(n, 4, 2),
-        black,
-        white,
-    )
+    windows = uv[k4:k5].reshape(2, n, 4, 2)  # the parts' corners, then grown
+    fill, side = _fill(gray, windows[0], windows[1], black, white)
     return PartMeasures(
         residual_px=part_residuals_px(h, names, quads, centroids_px),
         stray={nm: float(x) for nm, x in zip(names, stray, strict=True)},

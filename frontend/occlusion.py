@@ -771,6 +771,33 @@ def _signed_runs(dev: list[float], sign: float, thr: float) -> list[tuple[float,
     return [r for r in _dark_runs([sign * d >= thr for d in dev], dev) if r[1] <= _MAX_ARC_HALF]
 
 
+def _band_levels(
+    gray: np.ndarray, image_H_sign: np.ndarray, black: float, contrast: float
+) -> tuple[float, float, list[float]]:
+    """The rim band's reference black [gray], its run threshold and its
+    3-sample circular mean (white fractions off that black) at
+    ``_BAND_POINTS``, for ``off_black_bands``."""
+    # The band and the rim below it in one projection.
+    both = _project(image_H_sign, _BAND_AND_RIM)
+    uv, rim_d = both[:_N_BAND], both[_N_BAND:] - both[:_N_BAND]
+    frac = (_sample(gray, uv) - black) / contrast
+    # Levels against the band's own median where the background cannot bleed
+    # into it (the face's black there, the reading's is a low quantile);
+    # against the reading's black on a small sign, where it does.
+    if float(np.hypot(rim_d[:, 0], rim_d[:, 1]).min()) >= _BLEED_PX:
+        base = _median(frac.tolist())
+        frac = frac - base
+        black = black + base * contrast
+    # The noise from neighbouring samples' differences (an arc barely moves
+    # them), and runs found on a 3-sample circular mean (np.roll by slices:
+    # a third of its cost).
+    before = np.concatenate((frac[-1:], frac[:-1]))
+    after = np.concatenate((frac[1:], frac[:1]))
+    noise = 1.4826 * _median(np.abs(frac - before).tolist()) / math.sqrt(2.0)
+    thr = max(_OFF_BLACK_MIN, _OFF_BLACK_SIGMAS * noise)
+    return black, thr, ((frac + before + after) / 3.0).tolist()
+
+
 def off_black_bands(
     gray: np.ndarray,
     image_H_sign: np.ndarray,
@@ -796,25 +823,7 @@ def off_black_bands(
     if len(targets) == 0:
         return []
     contrast = max(white - black, 1e-6)
-    # The band and the rim below it in one projection.
-    both = _project(image_H_sign, _BAND_AND_RIM)
-    uv, rim_d = both[:_N_BAND], both[_N_BAND:] - both[:_N_BAND]
-    frac = (_sample(gray, uv) - black) / contrast
-    # Levels against the band's own median where the background cannot bleed
-    # into it (the face's black there, the reading's is a low quantile);
-    # against the reading's black on a small sign, where it does.
-    if float(np.hypot(rim_d[:, 0], rim_d[:, 1]).min()) >= _BLEED_PX:
-        base = _median(frac.tolist())
-        frac = frac - base
-        black = black + base * contrast
-    # The noise from neighbouring samples' differences (an arc barely moves
-    # them), and runs found on a 3-sample circular mean (np.roll by slices:
-    # a third of its cost).
-    before = np.concatenate((frac[-1:], frac[:-1]))
-    after = np.concatenate((frac[1:], frac[:1]))
-    noise = 1.4826 * _median(np.abs(frac - before).tolist()) / math.sqrt(2.0)
-    thr = max(_OFF_BLACK_MIN, _OFF_BLACK_SIGMAS * noise)
-    dev_l = ((frac + before + after) / 3.0).tolist()
+    black, thr, dev_l = _band_levels(gray, image_H_sign, black, contrast)
     out: list[Band] = []
     for sign in (1.0, -1.0):
         runs = _signed_runs(dev_l, sign, thr)
@@ -1142,6 +1151,22 @@ def _corner_edges(quads_key: tuple[float, ...]) -> tuple[np.ndarray, ...]:
     return out
 
 
+def _cut_corner_list(levels: list[list[float]]) -> list[tuple[int, int]]:
+    """(part, corner) of every cut corner, from each part's four probe levels
+    (white fractions): the other three corners, the darkest of them and the
+    two next to it, as ``cut_corners`` states. Plain floats: 4 corners of a
+    few parts, where numpy's per-call cost dominated (levels are finite, so
+    min is np.minimum)."""
+    cut = []
+    for p, row in enumerate(levels):
+        for k in range(4):
+            others = min(row[_NEXT[k]], row[_PREV[k]])
+            brighter = min(others, row[_OPPOSITE[k]])
+            if row[k] <= _CUT_DARK and others - row[k] >= _CUT_STEP and brighter >= _CUT_LIT:
+                cut.append((p, k))
+    return cut
+
+
 def cut_corners(
     gray: np.ndarray,
     image_H_sign: np.ndarray,
@@ -1182,17 +1207,7 @@ def cut_corners(
     f2 = np.minimum(np.maximum(_CUT_PROBE_PX * px / len2, lo), hi)
     probes = q + f1[..., None] * e1 + f2[..., None] * e2
     level = (_sample(gray, _project(image_H_sign, probes.reshape(-1, 2))) - black) / contrast
-    level = level.reshape(len(q), 4)
-    # The other three corners: the darkest of them, and the two next to it
-    # (plain floats: 4 corners of a few parts, numpy's per-call cost
-    # dominated; levels are finite, so min is np.minimum).
-    cut = []
-    for p, row in enumerate(level.tolist()):
-        for k in range(4):
-            others = min(row[_NEXT[k]], row[_PREV[k]])
-            brighter = min(others, row[_OPPOSITE[k]])
-            if row[k] <= _CUT_DARK and others - row[k] >= _CUT_STEP and brighter >= _CUT_LIT:
-                cut.append((p, k))
+    cut = _cut_corner_list(level.reshape(len(q), 4).tolist())
     if not cut:
         return []  # most readings: every part's corners alike
     pts = np.einsum("gk,pkj->pgj", _CUT_WEIGHTS, white_quads)  # (P, G, 2)
