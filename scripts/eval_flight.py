@@ -997,6 +997,7 @@ def evaluate(
     check = check_codes(read_jsonl(out / "observations.jsonl"), truth)
     result |= {
         "pixel_noise_scale": report.get("pixel_noise_scale"),
+        "intrinsics_check": report.get("intrinsics_check"),
         "report_status": {m: c.get("status") for m, c in report.get("coverage", {}).items()},
         "codes": code_summary(check),
         "keypoints": keypoint_summary(check),
@@ -1043,6 +1044,23 @@ def _print_methods(methods: dict) -> None:
         )
 
 
+def intrinsics_line(c: dict | None) -> str:
+    """report.json's ``intrinsics_check`` in one line: the video's change of the camera
+    file's focal length and principal point, in sigmas, and whether it was acted on."""
+    if not c:
+        return "intrinsics check: none (no smoother, or too little seen)"
+    d, s = c["change_px"], c["sigma_px"]
+    acted = [k for k in ("focal_off", "principal_off") if c.get(k)]
+    return (
+        f"intrinsics check: focal {100 * c['focal_rel']:+.2f} % (sigma "
+        f"{100 * c['focal_rel_sigma']:.2f} %, {c['focal_rel'] / c['focal_rel_sigma']:+.1f} "
+        f"sigma), principal point ({d['cx']:+.1f}, {d['cy']:+.1f}) px (sigma {s['cx']:.1f}, "
+        f"{s['cy']:.1f}; {d['cx'] / s['cx']:+.1f}, {d['cy'] / s['cy']:+.1f} sigma); "
+        + (f"ACTED ON: {', '.join(acted)}" if acted else "not acted on")
+        + ("" if c.get("settled", True) else " (fit not settled)")
+    )
+
+
 def print_flight(r: dict) -> None:
     print(f"\n== {r['name']}: {r['note']}; {r['frames']} frames at {r['size']}")
     for c in r["commands"]:
@@ -1062,6 +1080,7 @@ def print_flight(r: dict) -> None:
         f"recall] {c['recall_by_hidden']}\n  unhidden recall by off-axis angle [visible, found, "
         f"recall] {c.get('recall_unhidden_by_off_axis')}"
     )
+    print(f"  {intrinsics_line(r.get('intrinsics_check'))}")
     for w in c["wrong_list"][:10]:
         print(f"    wrong: frame {w[0]} code {w[1]} box {w[2]} px: {w[3]}")
     for kind, v in k.items():
@@ -1148,6 +1167,11 @@ def pooled(results: list[dict]) -> dict:
         "missed_unhidden": sum(r["codes"]["missed_unhidden"] for r in ran),
         "visible_unhidden": sum(r["codes"]["visible_unhidden"] for r in ran),
         "noise_scales": [r["pixel_noise_scale"] for r in ran],
+        "intrinsics_acted_on": [
+            r["name"]
+            for r in ran
+            if any((r.get("intrinsics_check") or {}).get(k) for k in ("focal_off", "principal_off"))
+        ],
         "recall_by_hidden": {},
         "missed_unhidden_why": {},
     }
@@ -1191,6 +1215,10 @@ def print_summary(s: dict) -> None:
         f"{s['noise_scales']}"
     )
     print(f"  recall by hidden share [visible, found, recall] {s['recall_by_hidden']}")
+    print(
+        "  intrinsics check acted on (correct camera files: a false alarm): "
+        f"{s.get('intrinsics_acted_on') or 'none'}"
+    )
     if s["missed_unhidden_why"]:
         print(
             f"  unhidden signs missed, decoded alone on their true box: {s['missed_unhidden_why']}"
