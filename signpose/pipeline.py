@@ -164,6 +164,8 @@ WORKER_START = "forkserver"
 WORKER_JOIN_S = 2.0
 # A worker's exit code after a MemoryError (its chunk is reported lost, out of memory).
 WORKER_OUT_OF_MEMORY = 75
+# PROFILE_ENV's job number of a lent worker's frame: chunk * this + position.
+LENT_JOB_STRIDE = 1_000_000
 # Set to a folder, every chunk and plot process writes into it, per job, what it cost
 # (``<kind>-<pid>-<job>.json``: CPU before the job, i.e. the process's own start, and
 # during it, wall stamps of the job) and, with PROFILE_STATS_ENV also set, the job's
@@ -236,6 +238,8 @@ class ObserveResult:
         solved_pnp: the tracker's PnP call on each frame it posed (with the
             frame of ``frames`` it was made on, this run's map and camera), for
             the estimator to reuse (``estimator.perframe.SolvedPnP``).
+        lent_frames: frames detected by an idle worker lent to another one's
+            chunk (once no chunk was left to start).
     """
 
     frames: tuple[FrameObservations, ...]
@@ -246,6 +250,7 @@ class ObserveResult:
     refused: tuple[RefusedObservation, ...] = ()
     lost: tuple[LostChunk, ...] = ()
     solved_pnp: tuple[SolvedPnP, ...] = ()
+    lent_frames: int = 0
 
 
 @dataclass(frozen=True)
@@ -937,6 +942,7 @@ class _Collected:
     full_frames: int = 0
     next_index: int = 0
     lost: list[LostChunk] = field(default_factory=list)
+    lent_frames: int = 0  # see ObserveResult
     # Instead of all that: frames go here as they are (a worker process's chunk).
     sink: FrameSink | None = None
     # The map and camera the tracker's PnP calls had (copies of these in a worker).
@@ -988,14 +994,21 @@ class FrameSink(Protocol):
 
 @dataclass(frozen=True)
 class _Pending:
+    """A frame planned and detected (``detected`` None: another process is detecting it)."""
+
     position: int
     frame: Frame
     plan: FramePlan
-    detected: DetectedFrame
+    detected: DetectedFrame | None
 
 
-def _finish_frame(item: _Pending, tracker: FrameTracker, out: _Collected) -> None:
+def _finish_frame(
+    item: _Pending, tracker: FrameTracker, out: _Collected, helper: _HelpedChunk | None = None
+) -> None:
     detected = item.detected
+    if detected is None:
+        assert helper is not None
+        detected = helper.answer(item.position, item.plan, tracker.codes)
     t_done = time.perf_counter()
     _add_detector_time(out.timing, detected.result, detected.spent_s)
     if detected.tracked:
@@ -1098,9 +1111,14 @@ def _observe_chunk(
     det: Detector,
     out: _Collected,
     prefetched: bool,
+    helper: _HelpedChunk | None = None,
 ) -> None:
     """One chunk's frame loop: frame i is planned from frame i - ``track_lag_frames``.
 
+    With ``helper`` (a worker process's chunk), a frame is detected in another
+    process whenever one is offered and free; the tracker is fed the same plans
+    and results in the same order either way (detection is a function of the
+    image and the plan only), so the observations are the same bytes.
     On KeyboardInterrupt the frames already detected are finished first.
     """
     s = tracker.settings
@@ -1110,14 +1128,20 @@ def _observe_chunk(
     try:
         for position, item in enumerate(_frames_timed(frame_iter, out.timing)):
             plan = tracker.plan(position)
-            detected = detect_frame(det, item.gray, plan, tracker.codes, s.detector_mode)
+            if helper is not None and helper.free():
+                # Frame i waits for nothing but frame i - lag: it is detected elsewhere
+                # while this process detects the next one.
+                helper.ask(position, item.gray, plan)
+                detected = None
+            else:
+                detected = detect_frame(det, item.gray, plan, tracker.codes, s.detector_mode)
             pending.append(_Pending(position, item.frame, plan, detected))
             while len(pending) >= lag:
-                _finish_frame(pending.popleft(), tracker, out)
+                _finish_frame(pending.popleft(), tracker, out, helper)
     finally:
         # Also after Ctrl-C: what is detected is finished, in order.
         while pending:
-            _finish_frame(pending.popleft(), tracker, out)
+            _finish_frame(pending.popleft(), tracker, out, helper)
         _close(frame_iter)
 
 
@@ -1137,6 +1161,7 @@ def run_chunk(
     out: _Collected | None = None,
     source: FrameSource | None = None,
     send: FrameSink | None = None,
+    conn=None,
 ) -> ChunkResult:
     """Observe one chunk with its own tracking (a full-frame search at its start).
 
@@ -1147,6 +1172,8 @@ def run_chunk(
         source: the input, open (inline); None: ``job.spec`` opened once per process.
         send: where each frame goes as it finishes, when ``out`` is None (a worker
             process's pipe).
+        conn: a worker process's pipe to the main process, through which an idle
+            worker may be lent to detect some of the chunk's frames; None: none.
 
     Returns:
         The ChunkResult.
@@ -1157,9 +1184,13 @@ def run_chunk(
         det = _cached(("detector", job.make, job.settings), lambda: job.make(job.settings))
     read = RangeRead(job.start, job.stop, job.size)
     tracker = FrameTracker(job.sign_map, job.camera, job.codes, job.settings)
+    helper = None
+    if conn is not None:
+        helper = _HelpedChunk(conn, job, det)
+        send = helper.send
     mine = _Collected(None, None, sink=send) if out is None else out
     before = dict(mine.timing), mine.tracked_frames, mine.full_frames
-    _observe_chunk(read_range(source, read), tracker, det, mine, job.settings.prefetch)
+    _observe_chunk(read_range(source, read), tracker, det, mine, job.settings.prefetch, helper)
     return ChunkResult(
         job.number,
         read,
@@ -1172,17 +1203,114 @@ def run_chunk(
 @dataclass(frozen=True)
 class ChunkFrame:
     """One frame of chunk ``number`` as a worker finished it (``obs.frame`` = position),
-    with the tracker's PnP call on it (None without tracking)."""
+    with the tracker's PnP call on it (None without tracking).
+
+    ``waits``: the chunk position of the next frame, when a lent worker was detecting
+    it as this one was finished; the frame counts as observed once that one is
+    detected (as without a lent worker: should the process die, the frames lost
+    are the same; ``ChunkProcesses`` holds it back until then).
+    """
 
     number: int
     obs: FrameObservations
     refused: tuple[RefusedObservation, ...]
     pnp: TrackedPose | None = None
+    waits: int | None = None
+
+
+# The main process tells a worker this when an idle worker may detect frames of its chunk.
+HELP_OFFERED = "help offered"
+
+
+@dataclass(frozen=True)
+class DetectRequest:
+    """A frame of chunk ``number`` its worker asks an idle worker to detect (through the
+    main process), with what the detection needs."""
+
+    number: int
+    position: int
+    gray: np.ndarray
+    plan: FramePlan
+    codes: tuple[str, ...]
+    settings: ObserveSettings
+    make: DetectorFactory
+
+
+@dataclass(frozen=True)
+class DetectAnswer:
+    """What the lent worker detected on a DetectRequest's frame; None: no worker was lent,
+    or it died on the frame (then the chunk's own worker detects it)."""
+
+    position: int
+    detected: DetectedFrame | None
+
+
+class _HelpedChunk:
+    """A worker's side of the idle worker the main process may lend it: one frame at a
+    time is asked of it (the tracker allows ``track_lag_frames`` frames in flight).
+
+    A frame finished while the next one is asked is sent marked as waiting for it
+    (``ChunkFrame.waits``).
+    """
+
+    def __init__(self, conn, job: ChunkJob, det: Detector) -> None:
+        self._conn = conn
+        self._job = job
+        self._det = det
+        self._offered = False
+        self._asked: tuple[int, np.ndarray] | None = None  # (position, gray)
+
+    def send(
+        self, obs: FrameObservations, refused: list[RefusedObservation], pnp: TrackedPose | None
+    ) -> None:
+        """A finished frame to the main process."""
+        waits = None if self._asked is None else self._asked[0]
+        self._conn.send(ChunkFrame(self._job.number, obs, tuple(refused), pnp, waits))
+
+    def free(self) -> bool:
+        """A worker is lent and has no frame of this chunk yet."""
+        if not self._offered and self._conn.poll():
+            self._offered = self._conn.recv() == HELP_OFFERED
+        return self._offered and self._asked is None
+
+    def ask(self, position: int, gray: np.ndarray, plan: FramePlan) -> None:
+        job = self._job
+        request = DetectRequest(job.number, position, gray, plan, job.codes, job.settings, job.make)
+        self._conn.send(request)
+        self._asked = (position, gray)
+
+    def answer(self, position: int, plan: FramePlan, codes: tuple[str, ...]) -> DetectedFrame:
+        """The lent worker's detection of the frame asked (detected here if it has none)."""
+        assert self._asked is not None and self._asked[0] == position
+        gray = self._asked[1]
+        reply = self._conn.recv()
+        if not isinstance(reply, DetectAnswer) or reply.position != position:
+            raise RuntimeError(f"chunk {self._job.number}: unexpected answer {reply!r}")
+        detected = reply.detected
+        if detected is None:  # no worker lent any more: the rest here
+            self._offered = False
+            detected = detect_frame(self._det, gray, plan, codes, self._job.settings.detector_mode)
+        self._asked = None
+        return detected
+
+
+def _detect_lent(request: DetectRequest) -> DetectAnswer:
+    """A lent worker's detection of another worker's frame (None where it raised: the
+    frame's own worker then detects it again, and raises what it raises)."""
+    key = ("detector", request.make, request.settings)
+    try:
+        det = _cached(key, lambda: request.make(request.settings))
+        mode = request.settings.detector_mode
+        detected = detect_frame(det, request.gray, request.plan, request.codes, mode)
+    except Exception:  # noqa: BLE001 - raised again where the frame's own worker detects it
+        return DetectAnswer(request.position, None)
+    return DetectAnswer(request.position, detected)
 
 
 def _chunk_worker(conn) -> None:
     """A worker process: observe the chunks it is sent until it is sent None; each frame
-    is sent as it finishes (so Ctrl-C keeps what the earliest chunk did), then the result."""
+    is sent as it finishes (so Ctrl-C keeps what the earliest chunk did), then the result.
+    Between chunks, lent to another worker, it detects the frames it is sent."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
     while True:
         try:
@@ -1191,12 +1319,17 @@ def _chunk_worker(conn) -> None:
             return
         if job is None:
             return
-
-        def send(obs, refused, pnp, number=job.number) -> None:
-            conn.send(ChunkFrame(number, obs, tuple(refused), pnp))
-
+        if isinstance(job, str):  # HELP_OFFERED after its chunk ended: nothing to do
+            continue
+        if isinstance(job, DetectRequest):
+            number = job.number * LENT_JOB_STRIDE + job.position
+            try:
+                conn.send(_profiled("lent", number, _detect_lent, job))
+            except MemoryError:
+                os._exit(WORKER_OUT_OF_MEMORY)
+            continue
         try:
-            answer: object = _profiled("chunk", job.number, run_chunk, job, send=send)
+            answer: object = _profiled("chunk", job.number, run_chunk, job, conn=conn)
         except MemoryError:
             os._exit(WORKER_OUT_OF_MEMORY)
         except Exception as exc:  # noqa: BLE001 - raised again in the parent
@@ -1230,11 +1363,15 @@ def _profiled(kind: str, number: int, work: Callable[..., object], *args, **kwar
             profile.dump_stats(stem.with_suffix(".prof"))
 
 
-@dataclass
+@dataclass(eq=False)
 class _Worker:
     process: object  # multiprocessing.Process
     conn: object  # its end of the pipe
     job: ChunkJob | None = None
+    lent: _Worker | None = None  # observing a chunk: the idle worker lent to it
+    lent_to: _Worker | None = None  # idle: the worker it is lent to
+    asked: DetectRequest | None = None  # lent: the frame it is detecting
+    held: ChunkFrame | None = None  # its frame waiting for the next one's detection
 
 
 class ChunkProcesses:
@@ -1250,6 +1387,7 @@ class ChunkProcesses:
         self._context = _process_context()
         self._wanted = workers
         self._workers: list[_Worker] = []
+        self.lent_frames = 0  # frames detected by a worker lent to another one's chunk
 
     def _start(self) -> _Worker:
         mine, theirs = self._context.Pipe()
@@ -1263,7 +1401,11 @@ class ChunkProcesses:
         return worker
 
     def run(self, jobs: Iterable[ChunkJob]) -> Iterator[ChunkFrame | ChunkResult | LostChunk]:
-        """The chunks' frames and results as they finish (chunks in any order)."""
+        """The chunks' frames and results as they finish (chunks in any order).
+
+        Once no chunk is left to start, a worker that is idle is lent to a chunk still
+        observed (``_lend``): its worker then has some frames detected by it.
+        """
         todo = deque(jobs)
         idle = [self._start() for _ in range(min(self._wanted, len(todo)))]
         busy: list[_Worker] = []
@@ -1273,22 +1415,122 @@ class ChunkProcesses:
                 worker.job = todo.popleft()
                 worker.conn.send(worker.job)
                 busy.append(worker)
-            waited = [w.conn for w in busy] + [w.process.sentinel for w in busy]
+            if not todo:
+                self._lend(idle, busy)
+            lent = [w for w in idle if w.lent_to is not None or w.asked is not None]
+            watched = busy + lent
+            waited = [w.conn for w in watched] + [w.process.sentinel for w in watched]
             ready = set(mp_connection.wait(waited))
-            for worker in [w for w in busy if w.conn in ready or w.process.sentinel in ready]:
+            for worker in [w for w in watched if w.conn in ready or w.process.sentinel in ready]:
+                if worker in lent:
+                    yield from self._lent_answered(worker, idle)
+                    continue
                 busy.remove(worker)
                 answer = self._answer(worker)
-                if isinstance(answer, ChunkFrame):
+                if isinstance(answer, ChunkFrame | DetectRequest):
                     busy.append(worker)  # the chunk goes on
-                elif isinstance(answer, LostChunk):
-                    self._workers.remove(worker)
-                    if todo:
-                        idle.append(self._start())
+                    if isinstance(answer, DetectRequest):
+                        self._forward(worker, answer)
+                        continue
                 else:
-                    idle.append(worker)
+                    if isinstance(answer, LostChunk):
+                        yield from self._settled(worker, idle)
+                    self._unlend(worker)
+                    if isinstance(answer, LostChunk):
+                        self._workers.remove(worker)
+                        if todo:
+                            idle.append(self._start())
+                    else:
+                        idle.append(worker)
                 if isinstance(answer, BaseException):
                     raise answer
-                yield answer
+                yield from self._released(worker, answer)
+
+    def _lend(self, idle: list[_Worker], busy: list[_Worker]) -> None:
+        """Each idle worker with nothing asked of it lent to the earliest chunk without one."""
+        for helper in idle:
+            owners = [w for w in busy if w.lent is None]
+            if not owners:
+                return
+            if helper.lent_to is not None or helper.asked is not None:
+                continue
+            owner = min(owners, key=lambda w: w.job.number if w.job is not None else 0)
+            with contextlib.suppress(OSError, ValueError):  # dead: its sentinel tells
+                owner.conn.send(HELP_OFFERED)
+            owner.lent, helper.lent_to = helper, owner
+
+    def _forward(self, owner: _Worker, request: DetectRequest) -> None:
+        """A frame to the worker lent to ``owner``; with none (it died), None back at once."""
+        helper = owner.lent
+        if helper is not None:
+            try:
+                helper.conn.send(request)
+                helper.asked = request
+                return
+            except (OSError, ValueError):
+                owner.lent = helper.lent_to = None  # dead: its sentinel tells
+        with contextlib.suppress(OSError, ValueError):
+            owner.conn.send(DetectAnswer(request.position, None))
+
+    def _lent_answered(self, helper: _Worker, idle: list[_Worker]) -> Iterator[ChunkFrame]:
+        """A lent worker's answer, to the worker it was lent to (if that one still waits
+        for it); a lent worker that died: None to it (it detects the frame itself)."""
+        request, owner, reply = helper.asked, helper.lent_to, None
+        with contextlib.suppress(EOFError, OSError):
+            if helper.conn.poll():
+                reply = helper.conn.recv()
+        helper.asked = None
+        if reply is None:  # it died
+            helper.process.join(WORKER_JOIN_S)
+            idle.remove(helper)
+            self._workers.remove(helper)
+            if owner is not None:
+                owner.lent = None
+            if request is None:
+                return
+            reply = DetectAnswer(request.position, None)
+        if owner is None or request is None or owner.job is None:
+            return
+        if owner.job.number == request.number:
+            with contextlib.suppress(OSError, ValueError):
+                owner.conn.send(reply)
+            if reply.detected is not None:
+                self.lent_frames += 1
+                held = owner.held
+                if held is not None and held.waits == request.position:
+                    owner.held = None
+                    yield held
+
+    def _settled(self, owner: _Worker, idle: list[_Worker]) -> Iterator[ChunkFrame]:
+        """A dead worker's frame held back: kept when the lent worker detects the frame
+        it waits for (as without one: that frame was detected before the one it died on)."""
+        helper = owner.lent
+        if owner.held is not None and helper is not None and helper.asked is not None:
+            mp_connection.wait([helper.conn, helper.process.sentinel])
+            yield from self._lent_answered(helper, idle)
+        owner.held = None
+
+    @staticmethod
+    def _released(
+        worker: _Worker, answer: ChunkFrame | ChunkResult | LostChunk
+    ) -> Iterator[ChunkFrame | ChunkResult | LostChunk]:
+        """``answer`` with the frame held back before it, or held back itself (a frame
+        finished while a lent worker detects the next one counts once that one is
+        detected: ``ChunkFrame.waits``)."""
+        if worker.held is not None:  # a later message: the frame it waited for is detected
+            yield worker.held
+            worker.held = None
+        if isinstance(answer, ChunkFrame) and answer.waits is not None:
+            worker.held = answer
+            return
+        yield answer
+
+    @staticmethod
+    def _unlend(owner: _Worker) -> None:
+        """A chunk ended: the worker lent to it is free (its answer, if any, is dropped)."""
+        if owner.lent is not None:
+            owner.lent.lent_to = None
+        owner.lent = None
 
     def _answer(self, worker: _Worker) -> ChunkFrame | ChunkResult | LostChunk | BaseException:
         job = worker.job
@@ -1476,6 +1718,7 @@ def _observe_chunks(
         pool.stop()
         raise
     pool.close()
+    out.lent_frames += pool.lent_frames
     if not reads:
         raise RuntimeError(
             f"{source.path}: every process observing the flight died ({out.lost[0].reason})"
@@ -1582,6 +1825,7 @@ def observe(
         refused=tuple(out.refused),
         lost=tuple(out.lost),
         solved_pnp=tuple(out.solved),
+        lent_frames=out.lent_frames,
     )
 
 
