@@ -35,7 +35,6 @@ import argparse
 import contextlib
 import functools
 import json
-import math
 import os
 import platform
 import resource
@@ -159,16 +158,20 @@ def _process_cpu(folder: Path, t0: float, t1: float) -> dict[str, dict[str, floa
     before each process's first job (after the fork), "processes": how many} [s]."""
     records = [json.loads(p.read_text(encoding="utf-8")) for p in folder.glob("*.json")]
     records = [r for r in records if t0 <= r["start"] and r["end"] <= t1]
+    # A process's start is counted once, with the kind of its first job (a chunk process
+    # lent to another chunk writes "lent" jobs after its own "chunk" ones).
+    first: dict[int, dict] = {}
+    for r in records:
+        if r["pid"] not in first or r["cpu_before_s"] < first[r["pid"]]["cpu_before_s"]:
+            first[r["pid"]] = r
     out: dict[str, dict[str, float]] = {}
     for kind in sorted({r["kind"] for r in records}):
         mine = [r for r in records if r["kind"] == kind]
-        first = {}
-        for r in mine:
-            first[r["pid"]] = min(first.get(r["pid"], math.inf), r["cpu_before_s"])
+        starts = [r["cpu_before_s"] for r in first.values() if r["kind"] == kind]
         out[kind] = {
             "jobs": sum(r["cpu_s"] for r in mine),
-            "starts": sum(first.values()),
-            "processes": len(first),
+            "starts": sum(starts),
+            "processes": len({r["pid"] for r in mine}),
         }
     return out
 
