@@ -19,8 +19,13 @@ The flight is cut into chunks of
 chunk's start), each observed with its own tracking (a full-frame search at
 its start) inline or in one of ``workers`` processes, and the frames are
 written in flight order as chunks finish; the chunks do not depend on the
-number of workers. A process that dies loses its chunk only: the run goes on
-and names the frames in ``problems`` (report.json: ``missing_frames``).
+number of workers. Once no chunk is left to start, an idle worker is lent to a
+chunk still observed: its worker has every other frame detected there (the
+tracker allows ``track_lag_frames`` frames in flight; the main process passes
+the image and the plan on), so the last chunks do not leave a core idle, and
+the tracker gets the same results in the same order. A process that dies
+loses its chunk only: the run goes on and names the frames in ``problems``
+(report.json: ``missing_frames``).
 
 ``run`` = ``observe`` + ``estimator.estimate.estimate_trajectories`` + the
 estimator's files + plots + ``result.mcap`` (+ ``compare`` against a ground
