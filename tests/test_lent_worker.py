@@ -25,7 +25,7 @@ from signpose.sim.flight import SimSettings, simulate
 DIED_EXIT_CODE = 3
 # Chunk 1 (frames 3-5 at chunk_frames=3) is this slow per frame [s]: chunks 0 and 2 are
 # done long before it, and their worker is lent to it.
-SLOW_FRAME_S = 1.0
+SLOW_FRAME_S = 2.0
 
 
 def _digest(image: np.ndarray) -> str:
