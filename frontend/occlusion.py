@@ -255,12 +255,22 @@ class Band:
         in_front: the image shows it in front (it darkens a white part, or
             its gray level differs from the print's black); False for a bar
             as black as the print, which may as well be behind.
+        beside: not ``in_front``, and its centre line passes close to white
+            parts that show white throughout (``dark_bands``' ``clean``):
+            dark background beyond the rim joined across the black face (it
+            took a clean part as covered and refused the sign), or a
+            conductor beside them, which may pull their centroids (0.3-1 px,
+            5-10 sigma on the independent scenes) without darkening them.
+        erases: whether it erases the black-read slots it crosses (False for
+            a band ``beside`` clean parts that shows nothing else).
     """
 
     p0: np.ndarray
     p1: np.ndarray
     half_width: float
     in_front: bool = True
+    beside: bool = False
+    erases: bool = True
 
     def distance(self, xy: np.ndarray) -> np.ndarray:
         """(N,) distances [diameters] of (N, 2) points from the band's centre line."""
@@ -534,16 +544,17 @@ def dark_bands(
     inside: bool,
     white_centres: np.ndarray,
     runs: list[tuple[float, float, float]] | None = None,
+    clean: np.ndarray | None = None,
 ) -> list[Band]:
     """Dark bands in front of the face: two dark rim runs joined by a dark chord.
 
     A bar behind the sign also darkens the rim on both sides, and over the
     black disc its chord is dark too. It is taken to be in front when the
-    chord crosses a white part (which then shows dark under it), when the
-    chord's gray level inside the disc differs from the print's black and
-    matches the bar's level outside, or, failing both, when it is wide enough
-    to hide a coded slot (then front and behind cannot be told apart, and a
-    slot it crosses must not be read as black).
+    chord crosses a white part (which then shows dark under it; not a
+    ``clean`` one), when the chord's gray level inside the disc differs from
+    the print's black and matches the bar's level outside, or, failing both,
+    when it is wide enough to hide a coded slot (then front and behind cannot
+    be told apart, and a slot it crosses must not be read as black).
 
     Args:
         gray: (H, W) uint8 crop.
@@ -552,6 +563,9 @@ def dark_bands(
         inside: whether the outer ring lies inside the crop (else no bands).
         white_centres: (P, 2) centres of the parts the reading sees white [diameters].
         runs: ``rim_runs`` of the same reading, when already sampled.
+        clean: (P,) whether each part shows white throughout (None: none).
+            A chord over clean parts only (dark photograph beyond the rim, or
+            a conductor) is ``beside``, not ``in_front`` (``Band.beside``).
     """
     if not inside:
         return []
@@ -572,6 +586,7 @@ def dark_bands(
     dark = keep.any(axis=1) & ~((chord > _DARK_FRAC) & keep).any(axis=1)
     bands = []
     centres = white_centres.tolist()
+    clean_l = [False] * len(centres) if clean is None else np.asarray(clean, bool).tolist()
     rim_l = rim.tolist()
     dark_k = np.flatnonzero(dark)
     rows = zip(
@@ -583,11 +598,7 @@ def dark_bands(
     )
     for i, j, chord_k, keep_k in rows:
         half = 0.5 * math.sin(min(runs[i][1], runs[j][1]))
-        # Band.distance in plain floats (this loop runs over every dark chord).
-        (x0, y0), (x1, y1) = rim_l[i], rim_l[j]
-        norm = max(math.hypot(x1 - x0, y1 - y0), 1e-12)
-        nx, ny = -(y1 - y0) / norm, (x1 - x0) / norm
-        over_white = any(abs((cx - x0) * nx + (cy - y0) * ny) < _ON_PART for cx, cy in centres)
+        over_white, beside = _over_parts(rim_l[i], rim_l[j], centres, clean_l)
         level_in = _median(itertools.compress(chord_k, keep_k))
         level_out = 0.5 * (runs[i][2] + runs[j][2])
         distinct = level_in > _BAR_ABOVE_BLACK and abs(level_in - level_out) < _BAR_LEVEL_MATCH
@@ -601,9 +612,28 @@ def dark_bands(
             wide = level_out - level_in < _BEHIND_GAP and _looks_like_a_bar(
                 gray, image_H_sign, Band(rim[i], rim[j], half), black, contrast
             )
-        if over_white or distinct or wide:
-            bands.append(Band(rim[i], rim[j], half, in_front=over_white or distinct))
+        front = over_white or distinct
+        if front or wide or beside:
+            bands.append(Band(rim[i], rim[j], half, front, beside and not front, front or wide))
     return bands
+
+
+def _over_parts(
+    p0: list[float], p1: list[float], centres: list[list[float]], clean: list[bool]
+) -> tuple[bool, bool]:
+    """Whether the chord p0 -> p1 [diameters] runs over a white part that is not
+    clean, and whether it runs over clean ones only (dark background beside
+    them, or a conductor). ``Band.distance`` in plain floats: ``dark_bands``
+    asks this of every dark chord."""
+    (x0, y0), (x1, y1) = p0, p1
+    norm = max(math.hypot(x1 - x0, y1 - y0), 1e-12)
+    nx, ny = -(y1 - y0) / norm, (x1 - x0) / norm
+    over = [
+        c
+        for (cx, cy), c in zip(centres, clean, strict=True)
+        if abs((cx - x0) * nx + (cy - y0) * ny) < _ON_PART
+    ]
+    return not all(over), bool(over) and all(over)
 
 
 def crossed(bands: list[Band], centres: np.ndarray, half_sizes: np.ndarray) -> np.ndarray:
