@@ -35,8 +35,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 from signpose.estimator.camera import CameraModel, pixel_from_cam_point, undistort_px_jacobian
+from signpose.estimator.projection import pixels_and_jacobians
 from signpose.estimator.smoother import Measurements
 
 # Parameters of the global block: fx, fy, cx, cy, then 3 per sign.
@@ -178,51 +180,36 @@ def _raw_side(meas: Measurements, camera: CameraModel) -> tuple[np.ndarray, np.n
     return raw, np.array(j_dist), W
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(M, 3, 3) cross-product matrices of (M, 3) vectors."""
-    z = np.zeros(len(v))
-    return np.stack(
-        [
-            np.stack([z, -v[:, 2], v[:, 1]], -1),
-            np.stack([v[:, 2], z, -v[:, 0]], -1),
-            np.stack([-v[:, 1], v[:, 0], z], -1),
-        ],
-        1,
-    )
+def _cam_points(world_T_cam: np.ndarray, world_p: np.ndarray) -> np.ndarray:
+    """(M, 3) camera-frame points of (M, 3) world points, each seen from its own (M, 4, 4) pose."""
+    return np.einsum("mji,mj->mi", world_T_cam[:, :3, :3], world_p - world_T_cam[:, :3, 3])
 
 
 def _linearised(meas, R, t, world, k, camera, raw, j_dist):
     """Raw-pixel residuals (M, 2) and Jacobians: pose (M, 2, 6), K (M, 2, 4), point (M, 2, 3).
 
     The prediction is the camera's own projection (its lens) with intrinsics
-    ``k`` = (fx, fy, cx, cy). Pose perturbation on the right: R <- R exp(w),
-    t <- t + R v, order (w, v).
+    ``k`` = (fx, fy, cx, cy); the pinhole's Jacobians (``projection.pixels_and_jacobians``,
+    pose perturbation [omega, v]) are carried into the raw image by ``j_dist``.
     """
-    Rf, tf = R[meas.frame], t[meas.frame]
-    pc = np.einsum("mji,mj->mi", Rf, world - tf)  # R^T (X - t)
-    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
-    fx, fy, cx, cy = k
     K = np.array(camera.K, dtype=float)
-    K[0, 0], K[1, 1], K[0, 2], K[1, 2] = fx, fy, cx, cy
-    pred = pixel_from_cam_point(replace(camera, K=K), pc)
-    dpi = np.zeros((len(z), 2, 3))
-    dpi[:, 0, 0] = fx / z
-    dpi[:, 0, 2] = -fx * x / z**2
-    dpi[:, 1, 1] = fy / z
-    dpi[:, 1, 2] = -fy * y / z**2
-    dpi = j_dist @ dpi  # through the lens: d(raw) / d(camera point)
-    j_pose = np.concatenate([dpi @ _skew(pc), -dpi], axis=2)
-    j_k = np.zeros((len(z), 2, _N_INTRINSICS))
-    j_k[:, 0, 0] = (pred[:, 0] - cx) / fx
-    j_k[:, 1, 1] = (pred[:, 1] - cy) / fy
+    K[0, 0], K[1, 1], K[0, 2], K[1, 2] = k
+    at_k = replace(camera, K=K)
+    T = np.zeros((len(meas.frame), 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = R[meas.frame], t[meas.frame], 1.0
+    _uv, d_pose, d_point = pixels_and_jacobians(at_k, T, world)
+    pred = pixel_from_cam_point(at_k, _cam_points(T, world))
+    j_k = np.zeros((len(pred), 2, _N_INTRINSICS))
+    j_k[:, 0, 0] = (pred[:, 0] - k[2]) / k[0]
+    j_k[:, 1, 1] = (pred[:, 1] - k[3]) / k[1]
     j_k[:, 0, 2] = 1.0
     j_k[:, 1, 3] = 1.0
-    j_point = dpi @ Rf.transpose(0, 2, 1)
-    return raw - pred, j_pose, j_k, j_point
+    return raw - pred, j_dist @ d_pose, j_k, j_dist @ d_point
 
 
 def _normal_blocks(meas, r, j_pose, j_g, W, n_frames):
-    """Per-frame A (N, 6, 6), B (N, 6, G), b (N, 6); global H (G, G), g (G,); Huber weights."""
+    """Per-frame A (N, 6, 6), B (N, 6, G), b (N, 6); global H (G, G), g (G,): the
+    whitened normal equations, each measurement Huber-weighted at ``_HUBER_K``."""
     rw = np.einsum("mij,mj->mi", W, r)
     norm = np.linalg.norm(rw, axis=1)
     w = np.where(norm > _HUBER_K, _HUBER_K / np.maximum(norm, 1e-12), 1.0)
@@ -261,15 +248,9 @@ def _step(A, B, b, H, g, prior):
     return dp, dg, S
 
 
-def _rodrigues(w: np.ndarray) -> np.ndarray:
+def _rotations(w: np.ndarray) -> np.ndarray:
     """(N, 3, 3) rotation matrices of (N, 3) rotation vectors."""
-    th = np.linalg.norm(w, axis=1)[:, None, None]
-    k = _skew(w)
-    small = th < 1e-12
-    th = np.where(small, 1.0, th)
-    a = np.where(small, 1.0, np.sin(th) / th)
-    c = np.where(small, 0.5, (1 - np.cos(th)) / th**2)
-    return np.eye(3) + a * k + c * (k @ k)
+    return np.array([cv2.Rodrigues(np.asarray(v, float).reshape(3, 1))[0] for v in w])
 
 
 def _fit(meas, world_T_cam, camera, settings):
@@ -302,7 +283,7 @@ def _fit(meas, world_T_cam, camera, settings):
         A[idle] = np.eye(6)
         dp, dg, S = _step(A, B, b, H, g, prior)
         t = t + np.einsum("nij,nj->ni", R, dp[:, 3:])
-        R = R @ _rodrigues(dp[:, :3])
+        R = R @ _rotations(dp[:, :3])
         k = k + dg[:_N_INTRINSICS]
         offsets = offsets + dg[_N_INTRINSICS:].reshape(-1, 3)
         last_step = float(np.max(np.abs(dg[:_N_INTRINSICS]) / step_scale))
