@@ -317,9 +317,12 @@ def check_intrinsics(
     if len(used) > settings.max_frames:
         used = used[np.linspace(0, len(used) - 1, settings.max_frames).round().astype(int)]
         meas = meas.subset(np.isin(meas.frame, used))
-    k, S, last_step = _fit(meas, world_T_cam, camera, settings)
+    try:
+        k, S, last_step = _fit(meas, world_T_cam, camera, settings)
+        cov = np.linalg.inv(S) * noise_scale**2
+    except np.linalg.LinAlgError:
+        return None  # a singular system (centre-only signs, poses seen once): no check
     k0 = np.array([camera.fx, camera.fy, camera.cx, camera.cy], dtype=float)
-    cov = np.linalg.inv(S) * noise_scale**2
     var = np.diag(cov)[:_N_INTRINSICS]
     jr = np.array([0.5 / k0[0], 0.5 / k0[1]])
     rel_var = float(jr @ cov[:2, :2] @ jr)
